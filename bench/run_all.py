@@ -1,0 +1,76 @@
+"""``make bench``: benchmarks with JSON results (medians of repeats; this machine is shared and noisy).
+
+Never part of ``make test``. Each benchmark states its bar; the JSON records the measurement and
+whether the bar was met, so regressions are visible without making CI flaky.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+
+def _median_seconds(fn: Callable[[], Any], repeats: int) -> tuple[float, list[float]]:
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times), times
+
+
+def bench_simulate_urans(repeats: int) -> dict[str, Any]:
+    """The 10-frequency URANS preset (3 cycles × 128 samples, 1316 points); bar: < 10 s."""
+    import yaml
+
+    from sim.airfoil.simulate import simulate_spec
+    from sim.airfoil.spec import parse_spec
+    from sim.presets import preset_text
+
+    spec = parse_spec(yaml.safe_load(preset_text("naca0015-urans")))
+    # first call includes the NeuralFoil import and calibration; report both
+    t0 = time.perf_counter()
+    ds = simulate_spec(spec)
+    cold = time.perf_counter() - t0
+    med, times = _median_seconds(lambda: simulate_spec(spec), repeats)
+    return {
+        "name": "simulate naca0015-urans",
+        "snapshots": ds.n_snapshots,
+        "points": ds.n_points,
+        "cold_seconds": round(cold, 3),
+        "median_seconds": round(med, 3),
+        "all_seconds": [round(t, 3) for t in times],
+        "bar_seconds": 10.0,
+        "meets_bar": cold < 10.0,
+    }
+
+
+BENCHES: dict[str, Callable[[int], dict[str, Any]]] = {"simulate-urans": bench_simulate_urans}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--only", nargs="*", choices=sorted(BENCHES))
+    args = ap.parse_args()
+    args.out.mkdir(parents=True, exist_ok=True)
+    results = {}
+    for name, fn in BENCHES.items():
+        if args.only and name not in args.only:
+            continue
+        res = fn(args.repeats)
+        results[name] = res
+        (args.out / f"{name}.json").write_text(json.dumps(res, indent=2))
+        print(json.dumps(res))
+    (args.out / "all.json").write_text(json.dumps(results, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

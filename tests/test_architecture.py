@@ -1,0 +1,52 @@
+"""Package borders (docs/design.md), enforced by parsing every module's imports."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def imports_of(package: str) -> dict[str, set[str]]:
+    """Top-level module names imported by each file of ``package`` (including lazy imports)."""
+    out: dict[str, set[str]] = {}
+    for path in (ROOT / package).rglob("*.py"):
+        names: set[str] = set()
+        for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+            if isinstance(node, ast.Import):
+                names |= {a.name.split(".")[0] for a in node.names}
+            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                names.add(node.module.split(".")[0])
+        out[str(path.relative_to(ROOT))] = names
+    return out
+
+
+def test_core_library_is_pure() -> None:
+    forbidden = {"sim", "firmware_bridge", "vdm_aero_cli", "pymavlink", "socket", "torch", "serial"}
+    for path, names in imports_of("vdm_aero").items():
+        assert not names & forbidden, f"{path} imports {sorted(names & forbidden)}"
+
+
+def test_onnxruntime_lives_behind_one_door() -> None:
+    users = [p for p, names in imports_of("vdm_aero").items() if "onnxruntime" in names]
+    assert len(users) <= 1, users
+    for pkg in ("sim", "firmware_bridge", "vdm_aero_cli"):
+        assert not [p for p, n in imports_of(pkg).items() if "onnxruntime" in n]
+
+
+def test_simulator_never_imports_the_bridge() -> None:
+    for path, names in imports_of("sim").items():
+        assert not names & {"firmware_bridge", "vdm_aero_cli"}, f"{path} imports {names}"
+
+
+def test_only_the_bridge_and_the_world_touch_mavlink() -> None:
+    for path, names in imports_of("vdm_aero_cli").items():
+        assert "pymavlink" not in names, f"{path}: the CLI wires, it does not speak MAVLink"
+
+
+def test_no_import_time_side_effects_in_library_modules() -> None:
+    # pymavlink's counter-example: no os.environ writes at import time anywhere in our packages
+    for pkg in ("vdm_aero", "sim", "firmware_bridge"):
+        for path in (ROOT / pkg).rglob("*.py"):
+            assert "os.environ[" not in path.read_text(), f"{path} writes the environment"

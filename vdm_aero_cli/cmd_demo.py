@@ -1,0 +1,54 @@
+"""``demo``: the most complete pipeline that exists, on embedded defaults, no network."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vdm_aero.coefficients import lift_drag
+from vdm_aero.dataset import Dataset, load_dataset
+from vdm_aero_cli.cmd_data import simulate_to
+from vdm_aero_cli.plots import plot_dataset
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser(
+        "demo",
+        help="run the whole pipeline on the shipped presets",
+        description="Simulate the URANS-like and tunnel-like NACA 0015 presets, plot them, print a summary.",
+    )
+    p.add_argument("--out", type=Path, default=Path("out/demo"), help="output directory (default out/demo)")
+    p.set_defaults(func=run_demo)
+
+
+def stall_summary(ds: Dataset) -> list[tuple[str, float, float, bool, float]]:
+    """Per case: (name, max C_L, α at max C_L [deg], on the upstroke?, loop area ∮C_L dα [rad])."""
+    cl, _ = lift_drag(ds.truth_coeffs(), ds.alpha, ds.beta)
+    rows = []
+    for case in ds.cases:
+        m = np.flatnonzero(ds.case == case.id)
+        a = ds.alpha[m]
+        i = int(np.argmax(cl[m]))
+        upstroke = bool(np.gradient(a)[i] > 0)
+        closed_a = np.append(a, a[0])
+        closed_cl = np.append(cl[m], cl[m][0])
+        area = float(np.sum(0.5 * (closed_cl[1:] + closed_cl[:-1]) * np.diff(closed_a)))
+        rows.append((case.name, float(cl[m][i]), float(np.degrees(a[i])), upstroke, area))
+    return rows
+
+
+def run_demo(args: argparse.Namespace) -> int:
+    out: Path = args.out
+    for preset in ("naca0015-urans", "naca0015-tunnel"):
+        path = simulate_to(preset, out / preset)
+        ds = load_dataset(path)
+        png = out / f"{preset}.png"
+        plot_dataset(ds, png)
+        print(f"\n{preset}: {ds.n_points} points, plot {png}")
+        print(f"  {'case':>10} {'CL max':>7} {'at α':>7} {'stroke':>6} {'∮CL dα':>8}")
+        for name, clmax, a_deg, up, area in stall_summary(ds):
+            print(f"  {name:>10} {clmax:7.3f} {a_deg:6.1f}° {'up' if up else 'down':>6} {area:8.3f}")
+    return 0
