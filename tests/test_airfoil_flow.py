@@ -69,9 +69,7 @@ def test_no_effect_is_quasi_steady_potential_flow() -> None:
     np.testing.assert_allclose(cp, flow.panels.cp(a34), atol=1e-12)
     # and with no motion, exactly the steady panel solution
     st0 = flow.march(*static(np.array([5.0, 10.0])))
-    np.testing.assert_allclose(
-        flow.cp(st0, flow.panel_surface), flow.panels.cp(np.radians([5.0, 10.0])), atol=1e-12
-    )
+    np.testing.assert_allclose(flow.cp(st0, flow.panel_surface), flow.panels.cp(np.radians([5.0, 10.0])), atol=1e-12)
 
 
 def test_circulation_lag_follows_wagner_step_response() -> None:
@@ -199,9 +197,7 @@ def test_incidence_offset_shifts_the_incidence_seen_by_the_flow() -> None:
     ref = make_flow({})
     st_off = off.march(*static(np.array([4.0, 8.0])))
     st_ref = ref.march(*static(np.array([5.5, 9.5])))
-    np.testing.assert_allclose(
-        off.cp(st_off, off.panel_surface), ref.cp(st_ref, ref.panel_surface), atol=1e-12
-    )
+    np.testing.assert_allclose(off.cp(st_off, off.panel_surface), ref.cp(st_ref, ref.panel_surface), atol=1e-12)
 
 
 def test_lift_slope_scale_scales_attached_lift() -> None:

@@ -100,9 +100,7 @@ def test_presets_parse_and_have_the_method_conditions() -> None:
     assert roles == {0.796: "train", 2.387: "train", 3.183: "train", 4.775: "train", 1.592: "validation",
                      3.979: "test"}  # fmt: skip
     # the tunnel carries effects the simulation side lacks
-    assert {"incidence_offset", "lift_slope_scale", "port_lag", "port_bias"} <= set(tunnel.effects) - set(
-        urans.effects
-    )
+    assert {"incidence_offset", "lift_slope_scale", "port_lag", "port_bias"} <= set(tunnel.effects) - set(urans.effects)
 
 
 def test_simulated_dataset_is_valid_and_reproducible(tmp_path: Path) -> None:

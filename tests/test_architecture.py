@@ -23,9 +23,15 @@ def imports_of(package: str) -> dict[str, set[str]]:
 
 
 def test_core_library_is_pure() -> None:
-    forbidden = {"sim", "firmware_bridge", "vdm_aero_cli", "pymavlink", "socket", "torch", "serial"}
+    forbidden = {"sim", "firmware_bridge", "vdm_aero_cli", "pymavlink", "socket", "serial"}
     for path, names in imports_of("vdm_aero").items():
         assert not names & forbidden, f"{path} imports {sorted(names & forbidden)}"
+
+
+def test_torch_only_in_the_offline_trainer() -> None:
+    # run time never imports torch (tests/test_model.py checks sys.modules after a prediction)
+    users = sorted(p for p, names in imports_of("vdm_aero").items() if "torch" in names)
+    assert users == ["vdm_aero/train_correction.py"], users
 
 
 def test_onnxruntime_lives_behind_one_door() -> None:

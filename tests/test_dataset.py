@@ -678,9 +678,7 @@ def test_select_cases_with_interleaved_rows() -> None:
 
 def test_select_cases_rejects_unknown_and_empty() -> None:
     ds = make_dataset(np.random.default_rng(42))
-    with pytest.raises(
-        DatasetError, match=r"unknown case ids 4, 9 \(data set 'unit-test' has case ids 3, 5\)"
-    ):
+    with pytest.raises(DatasetError, match=r"unknown case ids 4, 9 \(data set 'unit-test' has case ids 3, 5\)"):
         ds.select_cases([3, 9, 4])
     with pytest.raises(DatasetError, match="unknown case id 8"):
         ds.case_mask([8])
@@ -784,9 +782,7 @@ def test_case_properties() -> None:
 # --------------------------------------------------------------------------------------------------
 
 
-def test_load_scan_and_pressure_coeffs_never_copy_all_of_cp(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
+def test_load_scan_and_pressure_coeffs_never_copy_all_of_cp(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     m, n = 400, 5000  # 8 MB of float32; a full float64 copy would be 16 MB
     # 20 rows a chunk (a few rows, as with 300000 points): the peak is about one float64 chunk, 0.8 MB
     monkeypatch.setattr(dataset_module, "CHUNK_ELEMENTS", 100_000)

@@ -44,9 +44,7 @@ class ReferenceLike(Protocol):
         ...
 
 
-def force_moment_matrix(
-    points: ArrayLike, normals: ArrayLike, areas: ArrayLike, reference: ReferenceLike
-) -> F64Array:
+def force_moment_matrix(points: ArrayLike, normals: ArrayLike, areas: ArrayLike, reference: ReferenceLike) -> F64Array:
     """Return the (6, N) matrix ``S`` that maps pressure coefficients to body-axis coefficients.
 
     Args:
@@ -123,9 +121,7 @@ def body_to_wind(
     )
 
 
-def lift_drag(
-    coeffs: ArrayLike, alpha: ArrayLike, beta: ArrayLike | None = None
-) -> tuple[F64Array, F64Array]:
+def lift_drag(coeffs: ArrayLike, alpha: ArrayLike, beta: ArrayLike | None = None) -> tuple[F64Array, F64Array]:
     """Return ``(CL, CD)`` from body-axis coefficients (FRD).
 
     ``CL = CX sin α − CZ cos α`` and ``CD = −(CX cos α cos β + CY sin β + CZ sin α cos β)``; at α = 0

@@ -452,9 +452,7 @@ def _validate_arrays(ds: Dataset, *, check_values: bool) -> None:
         arr = getattr(ds, name)
         if arr is not None and (not isinstance(arr, np.ndarray) or arr.dtype.kind != "f"):
             dtype = arr.dtype if isinstance(arr, np.ndarray) else type(arr).__name__
-            raise DatasetError(
-                f"{lab(name)}: dtype {dtype}, expected a floating-point array (float32 or float64)"
-            )
+            raise DatasetError(f"{lab(name)}: dtype {dtype}, expected a floating-point array (float32 or float64)")
     if not isinstance(ds.case, np.ndarray) or ds.case.dtype.kind not in "iu":
         dtype = ds.case.dtype if isinstance(ds.case, np.ndarray) else type(ds.case).__name__
         raise DatasetError(f"{lab('case')}: dtype {dtype}, expected an integer array (int32 or int64)")
@@ -468,9 +466,7 @@ def _validate_arrays(ds: Dataset, *, check_values: bool) -> None:
     _check_ndim(lab("cp"), ds.cp, 2, "(M, N)")
     m = ds.cp.shape[0]
     if ds.cp.shape[1] != n:
-        raise DatasetError(
-            f"{lab('cp')}: shape {ds.cp.shape}, expected (M, N) = {(m, n)} to match points.npy"
-        )
+        raise DatasetError(f"{lab('cp')}: shape {ds.cp.shape}, expected (M, N) = {(m, n)} to match points.npy")
     if m == 0:
         raise DatasetError(f"{lab('cp')}: no snapshots (shape {ds.cp.shape})")
     _check_shape(lab("normals"), ds.normals, (n, 3), "(N, 3)", "points.npy")
@@ -484,8 +480,7 @@ def _validate_arrays(ds: Dataset, *, check_values: bool) -> None:
         _check_ndim(lab("coeffs"), ds.coeffs, 2, "(M, 3) or (M, 6)")
         if ds.coeffs.shape not in ((m, 3), (m, 6)):
             raise DatasetError(
-                f"{lab('coeffs')}: shape {ds.coeffs.shape}, expected (M, 3) or (M, 6) with M = {m} "
-                "to match cp.npy"
+                f"{lab('coeffs')}: shape {ds.coeffs.shape}, expected (M, 3) or (M, 6) with M = {m} to match cp.npy"
             )
 
     for name in ("points", "normals", "areas", "alpha", "t", "coeffs", "beta"):
@@ -503,8 +498,7 @@ def _validate_arrays(ds: Dataset, *, check_values: bool) -> None:
         count = int(bad.sum())
         what = "normal is" if count == 1 else "normals are"
         raise DatasetError(
-            f"{lab('normals')}: {count} {what} not unit length "
-            f"(worst |n| = {norms[worst]:.6g} at index {worst})"
+            f"{lab('normals')}: {count} {what} not unit length (worst |n| = {norms[worst]:.6g} at index {worst})"
         )
     negative = ds.areas < 0.0
     if negative.any():
@@ -724,9 +718,7 @@ def _parse_reference(raw: Any, label: str) -> Reference:
         raise DatasetError(f"{label}: reference must be a mapping with {', '.join(_REFERENCE_KEYS)}")
     for key in raw:
         if key not in _REFERENCE_KEYS:
-            raise DatasetError(
-                f"{label}: unknown key reference.{key} (expected {', '.join(_REFERENCE_KEYS)})"
-            )
+            raise DatasetError(f"{label}: unknown key reference.{key} (expected {', '.join(_REFERENCE_KEYS)})")
     values: dict[str, float] = {}
     for key in _REFERENCE_KEYS:
         if key not in raw:
@@ -917,9 +909,7 @@ def _yaml_document(ds: Dataset) -> dict[str, Any]:
 def _write_small_files(directory: Path, ds: Dataset) -> None:
     """Write ``dataset.yaml`` and every array except ``cp.npy`` into ``directory``."""
     try:
-        text = yaml.safe_dump(
-            _plain(_yaml_document(ds)), sort_keys=False, default_flow_style=False, allow_unicode=True
-        )
+        text = yaml.safe_dump(_plain(_yaml_document(ds)), sort_keys=False, default_flow_style=False, allow_unicode=True)
     except yaml.YAMLError as exc:
         raise DatasetError(f"{YAML_FILE}: metadata cannot be written as YAML ({_one_line(exc)})") from exc
     (directory / YAML_FILE).write_text(text, encoding="utf-8")
@@ -1069,9 +1059,7 @@ def create_dataset_memmap(
     """
     dest = Path(path)
     if not (_is_int(n_snapshots) and n_snapshots >= 1 and _is_int(n_points) and n_points >= 1):
-        raise DatasetError(
-            f"cp.npy: sizes must be positive integers, got M = {n_snapshots!r}, N = {n_points!r}"
-        )
+        raise DatasetError(f"cp.npy: sizes must be positive integers, got M = {n_snapshots!r}, N = {n_points!r}")
     try:
         kind = np.dtype(dtype).kind
     except TypeError as exc:

@@ -11,7 +11,7 @@ import sys
 from collections.abc import Sequence
 
 from vdm_aero.errors import UserInputError
-from vdm_aero_cli import cmd_data, cmd_demo
+from vdm_aero_cli import cmd_bench, cmd_data, cmd_demo, cmd_model, paper
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -21,6 +21,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     cmd_data.register(sub)
+    cmd_model.register(sub)
+    paper.register(sub)
+    cmd_bench.register(sub)
     cmd_demo.register(sub)
     return parser
 

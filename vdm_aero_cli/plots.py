@@ -55,3 +55,55 @@ def plot_dataset(ds: Dataset, out: Path) -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)
     plt.close(fig)
+
+
+def plot_predictions(pred: dict[str, np.ndarray], out: Path, *, title: str) -> None:
+    """C_L and C_D versus α and versus t: truth, DEIM and DEIM+NN."""
+    plt = _pyplot()
+    alpha_deg = np.degrees(pred["alpha"])
+    series = {k: lift_drag(pred[k], pred["alpha"]) for k in ("truth", "deim", "deim_nn") if k in pred}
+    style = {
+        "truth": ("k", "-", "truth"),
+        "deim": ("tab:blue", "--", "DEIM"),
+        "deim_nn": ("tab:red", ":", "DEIM+NN"),
+    }
+    fig, axes = plt.subplots(2, 2, figsize=(13, 8))
+    for j, coeff in enumerate(("C_L", "C_D")):
+        for key, (cl, cd) in series.items():
+            colour, ls, label = style[key]
+            y = cl if j == 0 else cd
+            axes[j, 0].plot(alpha_deg, y, color=colour, ls=ls, lw=1.2, label=label)
+            axes[j, 1].plot(pred["t"], y, color=colour, ls=ls, lw=1.2, label=label)
+        axes[j, 0].set(xlabel="α [deg]", ylabel=coeff)
+        axes[j, 1].set(xlabel="t [s]", ylabel=coeff)
+    axes[0, 0].legend()
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+
+
+def plot_model_diagnostics(model_dir: Path, out: Path, *, title: str) -> None:
+    """Ports on the fit surface numbered in DEIM order, scaled singular values, projection error vs n_b."""
+    from vdm_aero.model import load_diagnostics
+
+    plt = _pyplot()
+    d = load_diagnostics(model_dir)
+    pts, idx = d["fit_points_b"], d["fit_sensor_index"]
+    fig, axes = plt.subplots(1, 3, figsize=(18, 4.5), gridspec_kw={"width_ratios": [2.2, 1, 1]})
+    # body frame FRD: plot chordwise (−x, aft positive) against −z (up)
+    axes[0].plot(-pts[:, 0], -pts[:, 2], ".", ms=1.5, color="0.6")
+    for k, i in enumerate(idx):
+        axes[0].plot(-pts[i, 0], -pts[i, 2], "o", color="tab:red", ms=5)
+        axes[0].annotate(str(k + 1), (-pts[i, 0], -pts[i, 2]), textcoords="offset points", xytext=(3, 5), fontsize=9)
+    axes[0].set(xlabel="−x_b [m] (aft)", ylabel="−z_b [m] (up)", title=f"{title}: ports in DEIM order")
+    axes[0].set_aspect("equal")
+    sv = d["singular_values"]
+    axes[1].semilogy(np.arange(1, len(sv) + 1), sv / sv[0], "o-", ms=3)
+    axes[1].set(xlabel="mode", ylabel="σ_k / σ_1", title="scaled singular values")
+    eps = d["projection_error"]
+    axes[2].semilogy(np.arange(1, len(eps) + 1), eps, "o-", ms=3)
+    axes[2].set(xlabel="n_b", ylabel="ε_proj", title="projection error")
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)

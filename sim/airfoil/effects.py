@@ -120,8 +120,7 @@ _ALL = (
     _effect(
         "incidence_offset",
         "flow",
-        "The flow sees α + delta (tunnel flow angularity, model mounting offset): the recorded α is "
-        "unchanged.",
+        "The flow sees α + delta (tunnel flow angularity, model mounting offset): the recorded α is unchanged.",
         {"delta_deg": ParamInfo(0.5, -2.0, 2.0, "deg", "incidence seen by the flow minus recorded α")},
     ),
     _effect(

@@ -149,9 +149,7 @@ class AirfoilFlow:
         self._cn_q = (float(w @ (u0 * u0)), float(w @ (2 * u0 * u90)), float(w @ (u90 * u90)))
         self.alpha_0l = float(math.atan2(-self.panels.circulation0, self.panels.circulation90))
         h = 1e-5
-        self.cn_alpha = float(
-            (self.cn_attached(self.alpha_0l + h) - self.cn_attached(self.alpha_0l - h)) / (2 * h)
-        )
+        self.cn_alpha = float((self.cn_attached(self.alpha_0l + h) - self.cn_attached(self.alpha_0l - h)) / (2 * h))
         # table to invert C_N^C(α) (monotone over ±60°): the incidence whose attached normal force is C_N'
         self._inv_alpha = self.alpha_0l + np.radians(np.linspace(-60.0, 60.0, 2401))
         self._inv_cn = self.cn_attached(self._inv_alpha)
@@ -224,9 +222,7 @@ class AirfoilFlow:
         )
         return FlowState(**{k: np.asarray(getattr(full, k))[idx] for k in FlowState.__dataclass_fields__})
 
-    def _march_fine(
-        self, t: F64Array, alpha: F64Array, alpha_dot: F64Array, alpha_ddot: F64Array
-    ) -> FlowState:
+    def _march_fine(self, t: F64Array, alpha: F64Array, alpha_dot: F64Array, alpha_ddot: F64Array) -> FlowState:
         V, c = self.speed_m_s, self.chord_m
         eff = self.effects
         ds = np.concatenate([[0.0], np.diff(t) * 2.0 * V / c])
@@ -236,12 +232,8 @@ class AirfoilFlow:
         a34 = alpha_g + alpha_dot * c * (0.75 - self.pivot_x_c) / V
         if "circulation_lag" in eff:
             ts = self.param("circulation_lag", "time_scale")
-            x1 = _deficiency(
-                a34, np.exp(-WAGNER_B1 * ds / ts), WAGNER_A1 * np.exp(-WAGNER_B1 * ds / (2 * ts))
-            )
-            x2 = _deficiency(
-                a34, np.exp(-WAGNER_B2 * ds / ts), WAGNER_A2 * np.exp(-WAGNER_B2 * ds / (2 * ts))
-            )
+            x1 = _deficiency(a34, np.exp(-WAGNER_B1 * ds / ts), WAGNER_A1 * np.exp(-WAGNER_B1 * ds / (2 * ts)))
+            x2 = _deficiency(a34, np.exp(-WAGNER_B2 * ds / ts), WAGNER_A2 * np.exp(-WAGNER_B2 * ds / (2 * ts)))
             alpha_e = a34 - x1 - x2
         else:
             alpha_e = a34
@@ -335,9 +327,9 @@ class AirfoilFlow:
             for side in (True, False):
                 xs, u0, u90 = self._suction_tables[side]
                 m = st.suction_upper == side
-                us = np.cos(st.alpha_r[m]) * np.interp(st.x_sep[m], xs, u0) + np.sin(
-                    st.alpha_r[m]
-                ) * np.interp(st.x_sep[m], xs, u90)
+                us = np.cos(st.alpha_r[m]) * np.interp(st.x_sep[m], xs, u0) + np.sin(st.alpha_r[m]) * np.interp(
+                    st.x_sep[m], xs, u90
+                )
                 plateau[m] = np.maximum(1.0 - us * us, CP_BASE)
             cp = cp * (1.0 - w) + w * plateau[:, None]
         if "leading_edge_vortex" in self.effects:

@@ -57,9 +57,7 @@ def naca4_params(code: str) -> tuple[float, float, float]:
         raise ValueError(f"NACA code must be a string such as '2412' or 'naca0012', got {code!r}")
     match = _CODE_RE.match(code.strip().lower())
     if match is None:
-        raise ValueError(
-            f"not a NACA 4-digit designation: {code!r} (expected e.g. '0012', '2412', 'naca0015')"
-        )
+        raise ValueError(f"not a NACA 4-digit designation: {code!r} (expected e.g. '0012', '2412', 'naca0015')")
     m = int(match.group(1)) / 100.0
     p = int(match.group(2)) / 10.0
     t = int(match.group(3)) / 100.0
@@ -67,8 +65,7 @@ def naca4_params(code: str) -> tuple[float, float, float]:
         raise ValueError(f"NACA {code!r}: thickness digits '00' give a zero-thickness section")
     if m > 0.0 and p == 0.0:
         raise ValueError(
-            f"NACA {code!r}: cambered section (first digit {match.group(1)}) needs a camber position "
-            "digit 1-9, got 0"
+            f"NACA {code!r}: cambered section (first digit {match.group(1)}) needs a camber position digit 1-9, got 0"
         )
     if m == 0.0:
         p = 0.0  # symmetric: the position digit is meaningless
@@ -81,9 +78,7 @@ def camber_line(x: F64Array, m: float, p: float) -> tuple[F64Array, F64Array]:
     if m == 0.0:
         return np.zeros_like(x), np.zeros_like(x)
     fwd = x < p
-    yc = np.where(
-        fwd, m / p**2 * (2.0 * p * x - x**2), m / (1.0 - p) ** 2 * ((1.0 - 2.0 * p) + 2.0 * p * x - x**2)
-    )
+    yc = np.where(fwd, m / p**2 * (2.0 * p * x - x**2), m / (1.0 - p) ** 2 * ((1.0 - 2.0 * p) + 2.0 * p * x - x**2))
     dyc = np.where(fwd, 2.0 * m / p**2 * (p - x), 2.0 * m / (1.0 - p) ** 2 * (p - x))
     return yc, dyc
 
@@ -228,9 +223,7 @@ def surface_geometry(nodes: F64Array, *, chord_m: float, span_m: float, pivot_x_
     return geo
 
 
-def locate_taps(
-    nodes: F64Array, x_c: Sequence[float] | FloatArray, upper: Sequence[bool] | BoolArray
-) -> F64Array:
+def locate_taps(nodes: F64Array, x_c: Sequence[float] | FloatArray, upper: Sequence[bool] | BoolArray) -> F64Array:
     """Arc-length coordinates ``(K,)`` (chord units, from the first node) of taps given by x/c and side.
 
     Each tap is the point of its side (upper: nodes from the TE to the leading-edge node; lower: from

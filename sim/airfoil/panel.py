@@ -58,9 +58,7 @@ def _geometry(nodes: F64Array) -> tuple[F64Array, F64Array, F64Array, F64Array]:
     return lengths, tang, normal, 0.5 * (nodes[:-1] + nodes[1:])
 
 
-def _local_coords(
-    points: F64Array, nodes: F64Array
-) -> tuple[F64Array, F64Array, F64Array, F64Array, F64Array]:
+def _local_coords(points: F64Array, nodes: F64Array) -> tuple[F64Array, F64Array, F64Array, F64Array, F64Array]:
     """Panel frames and the local coordinates (P, N) of ``points`` (P, 2) relative to every panel:
     ξ along the panel tangent from its start node, η along its left (inward) normal."""
     lengths, tang, normal, _ = _geometry(nodes)
@@ -253,9 +251,7 @@ class PanelSolution:
         return cp @ (arm_y * fx - arm_x * fy)
 
     @overload
-    def interpolate(
-        self, s_c_query: ArrayLike, which: Literal["both"] = "both"
-    ) -> tuple[F64Array, F64Array]: ...
+    def interpolate(self, s_c_query: ArrayLike, which: Literal["both"] = "both") -> tuple[F64Array, F64Array]: ...
 
     @overload
     def interpolate(self, s_c_query: ArrayLike, which: Literal["ut0", "ut90"]) -> F64Array: ...

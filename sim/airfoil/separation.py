@@ -35,9 +35,7 @@ def neuralfoil_polar(airfoil: str, reynolds: float, alpha_deg: F64Array) -> tupl
     return np.asarray(aero["CL"], dtype=np.float64), np.asarray(aero["CD"], dtype=np.float64)
 
 
-def separation_from_polar(
-    flow: AirfoilFlow, alpha_deg: F64Array, cn_target: F64Array, slope_factor: float
-) -> F64Array:
+def separation_from_polar(flow: AirfoilFlow, alpha_deg: F64Array, cn_target: F64Array, slope_factor: float) -> F64Array:
     """Separation point f at each incidence such that the model's normal force equals ``cn_target``.
 
     ``flow`` must have ``trailing_edge_separation`` switched on (its pressure plateau is part of the

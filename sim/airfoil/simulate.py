@@ -111,9 +111,7 @@ class AirfoilSimulator:
         w = 2.0 * math.pi * freq_hz
         a0, amp = math.radians(m.alpha0_deg), math.radians(m.amplitude_deg)
         alpha = a0 + amp * np.sin(w * t)
-        return self.run_motion(
-            t, alpha, amp * w * np.cos(w * t), -amp * w * w * np.sin(w * t), warmup=spc, rng=rng
-        )
+        return self.run_motion(t, alpha, amp * w * np.cos(w * t), -amp * w * w * np.sin(w * t), warmup=spc, rng=rng)
 
 
 def first_order_lag(t: F64Array, x: F64Array, tau_s: float) -> F64Array:

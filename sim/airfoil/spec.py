@@ -198,9 +198,7 @@ def _parse_effects(data: Any, origin: str) -> dict[str, dict[str, Any]]:
             lo, hi = PORT_BIAS_RANGE_CP
             for tap, v in params.items():
                 if isinstance(v, bool) or not isinstance(v, int | float) or not lo <= float(v) <= hi:
-                    raise SpecError(
-                        f"{origin}: effects.port_bias.{tap}: expected a Cp offset in [{lo}, {hi}]"
-                    )
+                    raise SpecError(f"{origin}: effects.port_bias.{tap}: expected a Cp offset in [{lo}, {hi}]")
                 parsed[str(tap)] = float(v)
         else:
             for p, v in params.items():

@@ -1,0 +1,239 @@
+"""Fit → train → evaluate on data sets: the offline workflow behind ``vdm-aero fit/train/evaluate``.
+
+Fitting and evaluating need numpy only; training imports :mod:`vdm_aero.train_correction` (torch)
+when called.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vdm_aero.dataset import Dataset
+from vdm_aero.deim import DEIMForceModel
+from vdm_aero.errors import UserInputError
+from vdm_aero.evaluation import lift_drag_errors, merge_methods
+from vdm_aero.model import AeroModel, LinearModel, load_diagnostics, read_model_yaml, write_model
+from vdm_aero.pod import projection_error
+from vdm_aero.ports import Port, candidates_nearest, match_ports
+
+PORT_TOLERANCE_CHORD = 0.01  # ports match data-set points within 1 % of the reference chord
+MAX_DIAGNOSTIC_MODES = 30
+
+
+def fit_model(
+    ds: Dataset,
+    out: Path,
+    *,
+    n_sensors: int,
+    n_modes: int | None = None,
+    method: str = "deim",
+    cases: Sequence[int] | None = None,
+    candidates_from: Dataset | None = None,
+) -> AeroModel:
+    """POD + DEIM on ``ds`` (optionally only ``cases``); writes the model directory ``out``."""
+    if cases is not None:
+        ds = ds.select_cases(cases)
+    candidates = None
+    if candidates_from is not None:
+        candidates = candidates_nearest(ds.points, candidates_from.points)
+        if len(candidates) < n_sensors:
+            raise UserInputError(
+                f"--candidates-from {candidates_from.name}: only {len(candidates)} distinct candidate points "
+                f"for {n_sensors} sensors"
+            )
+    if not 1 <= n_sensors <= ds.n_points:
+        raise UserInputError(f"--sensors: must be between 1 and {ds.n_points} (points of {ds.name})")
+    if n_modes is not None and not 1 <= n_modes <= min(n_sensors, ds.n_snapshots):
+        raise UserInputError(
+            f"--modes: must be between 1 and min(--sensors, snapshots) = {min(n_sensors, ds.n_snapshots)}"
+        )
+    S = ds.force_matrix()
+    est = DEIMForceModel(n_sensors=n_sensors, n_modes=n_modes, method=method, candidates=candidates)
+    est.fit(ds.cp, S)
+    sensors = np.asarray(est.sensors_, dtype=np.int64)
+    linear = LinearModel(
+        Us=np.asarray(est.port_modes_, dtype=np.float64),
+        mean_s=np.asarray(est.mean_, dtype=np.float64)[sensors],
+        SU=np.asarray(est.force_modes_, dtype=np.float64),
+        Smean=np.asarray(est.force_mean_, dtype=np.float64),
+    )
+    # diagnostics: scaled singular values and projection error vs n_b from a wider basis
+    from vdm_aero.pod import pod_basis
+
+    k = min(MAX_DIAGNOSTIC_MODES, ds.n_snapshots, ds.n_points)
+    wide = pod_basis(ds.cp, k, rng=np.random.default_rng(0))
+    nb = np.arange(1, k + 1)
+    eps = projection_error(ds.cp, wide, nb)
+    ports = tuple(Port(ds.point_names[i], _triple(ds.points[i]), _triple(ds.normals[i])) for i in sensors)
+    meta: dict[str, Any] = {
+        "name": f"{ds.name}-{method}{n_sensors}",
+        "method": method,
+        "n_sensors": int(n_sensors),
+        "n_modes": int(est.n_modes_),
+        "fit": {
+            "dataset": ds.name,
+            "source": ds.source,
+            "cases": [int(c) for c in ds.case_ids()],
+            "n_snapshots": ds.n_snapshots,
+            "n_points": ds.n_points,
+            "candidates": "all"
+            if candidates is None
+            else f"nearest to {candidates_from.name if candidates_from else ''}",
+            "n_candidates": int(ds.n_points if candidates is None else len(candidates)),
+            "energy": float(est.energy_),
+            "port_amplification": float(est.port_amplification_),
+            "projection_error": {int(n): float(e) for n, e in zip(nb, eps, strict=True)},
+        },
+    }
+    write_model(
+        out,
+        linear=linear,
+        sensors=sensors,
+        ports=ports,
+        reference=ds.reference,
+        meta=meta,
+        diagnostics={
+            "singular_values": wide.singular_values,
+            "projection_error": eps,
+            "fit_points_b": ds.points,
+            "fit_sensor_index": sensors,
+        },
+    )
+    return AeroModel.load(out)
+
+
+def _triple(v: Any) -> tuple[float, float, float]:
+    a = np.asarray(v, dtype=np.float64)
+    return float(a[0]), float(a[1]), float(a[2])
+
+
+def port_columns(model: AeroModel, ds: Dataset) -> np.ndarray:
+    """Column of ``ds`` for each model port, matched by location."""
+    tol = PORT_TOLERANCE_CHORD * model.reference.chord_m
+    return match_ports(model.ports, ds.points, tolerance_m=tol, where=ds.name if ds.path is None else str(ds.path))
+
+
+def ports_and_truth(model: AeroModel, ds: Dataset, cases: Sequence[int]) -> tuple[np.ndarray, np.ndarray, Dataset]:
+    """(Cp at the model's ports (K, n_s), truth coefficients (K, 6), the selected data set)."""
+    sub = ds.select_cases(cases)
+    cols = port_columns(model, sub)
+    return np.asarray(sub.cp[:, cols], dtype=np.float64), sub.truth_coeffs(), sub
+
+
+def train_model(
+    model_dir: Path,
+    ds: Dataset,
+    *,
+    train_cases: Sequence[int],
+    val_cases: Sequence[int],
+    grid: str = "quick",
+    seed: int = 0,
+    max_epochs: int = 3000,
+    train_noise: float = 0.0,
+    progress: Callable[[int, int], None] | None = None,
+) -> dict[str, Any]:
+    """Train the correction net on (truth − DEIM) and add it to the model directory.
+
+    ``train_noise``: relative input-noise augmentation during training (see
+    :func:`vdm_aero.train_correction.train_one`)."""
+    from vdm_aero.train_correction import GRIDS, check_onnx_matches, export_onnx, grid_search
+
+    if grid not in GRIDS:
+        raise UserInputError(f"--grid: unknown grid {grid!r} (known: {', '.join(GRIDS)})")
+    if set(train_cases) & set(val_cases):
+        raise UserInputError("--train-cases and --val-cases overlap: validation must be on unseen cases")
+    model = AeroModel.load(model_dir).with_correction(None)
+    x_tr, y_tr, _ = ports_and_truth(model, ds, train_cases)
+    x_va, y_va, _ = ports_and_truth(model, ds, val_cases)
+    r_tr = y_tr - model.predict_batch(x_tr, linear_only=True)
+    r_va = y_va - model.predict_batch(x_va, linear_only=True)
+    best, table = grid_search(
+        GRIDS[grid],
+        x_tr,
+        r_tr,
+        x_va,
+        r_va,
+        seed=seed,
+        max_epochs=max_epochs,
+        input_noise=train_noise,
+        linear_ms=model.linear.Ms,
+        progress=progress,
+    )
+    onnx_bytes = export_onnx(best.net, model.n_ports)
+    onnx_err = check_onnx_matches(onnx_bytes, best.net, np.vstack([x_tr, x_va]))
+    summary = {
+        "dataset": ds.name,
+        "train_cases": [int(c) for c in train_cases],
+        "val_cases": [int(c) for c in val_cases],
+        "grid": grid,
+        "seed": int(seed),
+        "train_noise": float(train_noise),
+        "selected": {
+            "hidden_layers": best.config.hidden_layers,
+            "width": best.config.width,
+            "weight_decay": best.config.weight_decay,
+        },
+        "val_mse": best.val_mse,
+        "val_mse_deim_only": float(np.mean(r_va**2)),
+        "onnx_vs_torch_max_abs": onnx_err,
+        "candidates": table,
+    }
+    meta = read_model_yaml(model_dir)
+    meta["training"] = summary
+    diag = load_diagnostics(model_dir)
+    sensors = np.load(model_dir / "deim.npz")["sensors"]
+    write_model(
+        model_dir,
+        linear=model.linear,
+        sensors=sensors,
+        ports=model.ports,
+        reference=model.reference,
+        meta=meta,
+        diagnostics=diag,
+        net_onnx=onnx_bytes,
+    )
+    return summary
+
+
+def evaluate_model(
+    model: AeroModel, ds: Dataset, cases: Sequence[int], *, noise: float = 0.0, seed: int = 0
+) -> dict[str, Any]:
+    """The method's table row: ℓ2/ℓ∞/α-at-ℓ∞ of C_L and C_D for DEIM (and DEIM+NN when the model has a net).
+
+    ``noise`` is the relative std of multiplicative Gaussian noise on the port inputs,
+    Cp·(1 + noise·N(0,1)), drawn from ``numpy.random.default_rng(seed)``.
+    """
+    x, truth, sub = ports_and_truth(model, ds, cases)
+    if noise > 0:
+        x = x * (1.0 + noise * np.random.default_rng(seed).standard_normal(x.shape))
+    per: dict[str, Any] = {
+        "deim": lift_drag_errors(model.predict_batch(x, linear_only=True), truth, sub.alpha, sub.beta)
+    }
+    if model.has_correction:
+        per["deim_nn"] = lift_drag_errors(model.predict_batch(x), truth, sub.alpha, sub.beta)
+    return {
+        "n_sensors": model.n_ports,
+        "noise": noise,
+        "cases": [int(c) for c in cases],
+        "dataset": ds.name,
+        "metrics": merge_methods(per),
+    }
+
+
+def predictions(model: AeroModel, ds: Dataset, cases: Sequence[int]) -> dict[str, np.ndarray]:
+    """Truth, DEIM and DEIM+NN coefficient series with α and t (for plots)."""
+    x, truth, sub = ports_and_truth(model, ds, cases)
+    out = {
+        "alpha": sub.alpha,
+        "t": sub.t,
+        "case": sub.case,
+        "truth": truth,
+        "deim": model.predict_batch(x, linear_only=True),
+    }
+    if model.has_correction:
+        out["deim_nn"] = model.predict_batch(x)
+    return out

@@ -1,0 +1,110 @@
+"""``bench``: latency and scale benchmarks (medians; ratios are what to compare across machines)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vdm_aero.errors import UserInputError
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser(
+        "bench",
+        help="benchmarks: aero (run-time latency), deim-select",
+        description="aero: median single-sample latency of the run-time path (10 ports, 4x40 net); "
+        "deim-select: DEIM over 300,000 candidates x 15 modes.",
+    )
+    p.add_argument("which", choices=("aero", "deim-select"))
+    p.add_argument("--json", action="store_true", help="print JSON only")
+    p.add_argument("--ports", type=int, default=10)
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=run_bench)
+
+
+def _per_call_us(fn: Callable[[], Any], *, calls: int = 1000, batches: int = 30) -> float:
+    """Median over batches of the mean time of one call [µs] (batched to keep timer overhead out)."""
+    for _ in range(calls):
+        fn()
+    per = []
+    for _ in range(batches):
+        t0 = time.perf_counter_ns()
+        for _ in range(calls):
+            fn()
+        per.append((time.perf_counter_ns() - t0) / calls / 1000.0)
+    return statistics.median(per)
+
+
+def bench_aero(n_ports: int = 10, seed: int = 0) -> dict[str, Any]:
+    """Latency of AeroModel.predict for DEIM only and DEIM + a 4 × 40 ReLU net."""
+    from vdm_aero.dataset import Reference
+    from vdm_aero.model import AeroModel, LinearModel
+    from vdm_aero.ports import Port
+
+    try:
+        from vdm_aero.train_correction import CorrectionNet, NetConfig, export_onnx
+    except ImportError:
+        raise UserInputError("bench aero builds its test net with PyTorch: install the 'train' extra") from None
+    rng = np.random.default_rng(seed)
+    n = n_ports
+    linear = LinearModel(
+        Us=rng.standard_normal((n, n)), mean_s=rng.standard_normal(n), SU=rng.standard_normal((6, n)),
+        Smean=rng.standard_normal(6),
+    )  # fmt: skip
+    net = CorrectionNet(NetConfig(4, 40, 1e-6), np.zeros(n), np.ones(n), np.zeros(6), np.ones(6))
+    ports = tuple(Port(f"p{i}", (0.0, 0.0, 0.0), (0.0, 0.0, 1.0)) for i in range(n))
+    x = rng.standard_normal(n)
+    with tempfile.TemporaryDirectory() as d:
+        onnx_path = Path(d) / "net.onnx"
+        onnx_path.write_bytes(export_onnx(net, n))
+        ref = Reference(1.0, 1.0, 1.0)
+        deim = AeroModel(linear=linear, ports=ports, reference=ref, meta={})
+        full = AeroModel(linear=linear, ports=ports, reference=ref, meta={}, net_path=onnx_path)
+        corr = full._net
+        assert corr is not None
+        timings = {
+            "deim_predict_us": _per_call_us(lambda: deim.predict(x)),
+            "deim_nn_predict_us": _per_call_us(lambda: full.predict(x)),
+            "onnx_iobinding_us": _per_call_us(lambda: corr.predict_one(x)),
+            "onnx_run_us": _per_call_us(lambda: corr.predict_one_run(x)),
+            "batch_1000_per_sample_us": _per_call_us(lambda: full.predict_batch(np.tile(x, (1000, 1))), calls=5) / 1000,
+        }
+    res: dict[str, Any] = {k: round(v, 3) for k, v in timings.items()}
+    res.update({"ports": n, "net": "4x40 ReLU", "target_deim_nn_us": 10.0, "method_reference_us": 81.0})
+    return res
+
+
+def bench_deim_select(seed: int = 0) -> dict[str, Any]:
+    from vdm_aero.deim import deim_indices
+
+    rng = np.random.default_rng(seed)
+    u, _ = np.linalg.qr(rng.standard_normal((300_000, 15)))
+    times = []
+    for _ in range(5):
+        t0 = time.perf_counter()
+        deim_indices(u)
+        times.append(time.perf_counter() - t0)
+    return {
+        "candidates": 300_000,
+        "modes": 15,
+        "median_seconds": round(statistics.median(times), 4),
+        "bar_seconds": 2.0,
+    }
+
+
+def run_bench(args: argparse.Namespace) -> int:
+    res = bench_aero(args.ports, args.seed) if args.which == "aero" else bench_deim_select(args.seed)
+    if args.json:
+        print(json.dumps(res))
+    else:
+        for k, v in res.items():
+            print(f"{k:28} {v}")
+    return 0

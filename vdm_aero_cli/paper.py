@@ -1,0 +1,165 @@
+"""``paper-tables --case airfoil``: the method's two NACA 0015 table pairs, end to end from the presets.
+
+Case 1: DEIM built on experiment (tunnel) data, candidates = the 36 taps.
+Case 2: DEIM built on simulation (URANS) data with candidates nearest the taps, applied to experiment
+inputs. In both, the correction net is trained on the tunnel training cases, selected on the
+validation case, and everything is evaluated on the held-out test case, without noise and with 1.5 %
+noise on the port inputs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+from vdm_aero.dataset import Dataset, load_dataset
+from vdm_aero.errors import UserInputError
+from vdm_aero.model import AeroModel
+from vdm_aero_cli.cmd_data import simulate_to
+from vdm_aero_cli.progress import progress_bar
+
+NOISE = 0.015
+CASES = {
+    1: "DEIM on experiment data",
+    2: "DEIM on simulation data, candidates nearest the taps, experiment inputs",
+}
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser(
+        "paper-tables",
+        help="reproduce the method's error tables end to end",
+        description="Simulate the presets, fit, train and evaluate both of the method's cases for each n_s, "
+        "and write tables (Markdown + JSON) and plots.",
+    )
+    p.add_argument("--case", choices=("airfoil",), required=True, help="which test case of the method")
+    p.add_argument("--out", type=Path, required=True, metavar="DIR")
+    p.add_argument("--sensors", default="5,8,10", help="comma-separated n_s values (default 5,8,10)")
+    p.add_argument("--grid", choices=("paper", "quick"), default="paper")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--max-epochs", type=int, default=3000)
+    p.add_argument("--train-noise", type=float, default=0.0, help="input-noise augmentation while training")
+    p.set_defaults(func=run_paper_tables)
+
+
+def case_roles(ds: Dataset) -> dict[str, list[int]]:
+    roles: dict[str, list[int]] = {"train": [], "validation": [], "test": []}
+    for c in ds.cases:
+        r = c.meta.get("role")
+        if r in roles:
+            roles[str(r)].append(c.id)
+    if not all(roles.values()):
+        raise UserInputError(f"{ds.name}: cases need roles train, validation and test (dataset.yaml cases[].role)")
+    return roles
+
+
+def run_airfoil_tables(
+    out: Path,
+    *,
+    sensors: list[int],
+    grid: str,
+    seed: int,
+    max_epochs: int,
+    train_noise: float,
+    quiet: bool = False,
+) -> dict[str, Any]:
+    from vdm_aero.pipeline import evaluate_model, fit_model, predictions, train_model
+    from vdm_aero_cli.plots import plot_model_diagnostics, plot_predictions
+
+    data = out / "data"
+    urans = load_dataset(simulate_to("naca0015-urans", data / "naca0015-urans", quiet=quiet))
+    tunnel = load_dataset(simulate_to("naca0015-tunnel", data / "naca0015-tunnel", quiet=quiet))
+    roles = case_roles(tunnel)
+    results: list[dict[str, Any]] = []
+    jobs = [(case, n) for case in CASES for n in sensors]
+    with progress_bar("paper tables", len(jobs)) as update:
+        for k, (case, n) in enumerate(jobs):
+            mdir = out / "models" / f"case{case}-ns{n}"
+            if case == 1:
+                fit_model(tunnel, mdir, n_sensors=n, cases=roles["train"])
+            else:
+                fit_model(urans, mdir, n_sensors=n, candidates_from=tunnel)
+            train_model(
+                mdir,
+                tunnel,
+                train_cases=roles["train"],
+                val_cases=roles["validation"],
+                grid=grid,
+                seed=seed,
+                max_epochs=max_epochs,
+                train_noise=train_noise,
+            )
+            model = AeroModel.load(mdir)
+            for noise in (0.0, NOISE):
+                r = evaluate_model(model, tunnel, roles["test"], noise=noise, seed=seed)
+                r["case"] = case
+                r["selected_net"] = model.meta["training"]["selected"]
+                results.append(r)
+            if n == max(sensors):
+                plot_predictions(predictions(model, tunnel, roles["test"]), out / f"case{case}-ns{n}-predictions.png",
+                                 title=f"case {case}, n_s = {n}, test case {roles['test']}")  # fmt: skip
+                plot_model_diagnostics(mdir, out / f"case{case}-ns{n}-sensors.png", title=f"case {case}")
+            update(k + 1, len(jobs))
+    doc = {"case": "airfoil", "grid": grid, "seed": seed, "train_noise": train_noise, "results": results}
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "tables.json").write_text(json.dumps(doc, indent=2))
+    (out / "tables.md").write_text(tables_markdown(doc))
+    return doc
+
+
+def tables_markdown(doc: dict[str, Any]) -> str:
+    lines = [
+        "# Method tables: pitching NACA 0015 (vdm-aero presets)",
+        "",
+        "Errors on the held-out test case: ℓ2 = ‖ŷ−y‖₂/‖y‖₂, ℓ∞ = max|ŷ−y|/max|y|, α at the ℓ∞ error.",
+        f"Correction-net grid: {doc['grid']}; seed {doc['seed']}; training input noise {doc['train_noise']:g}.",
+        "",
+    ]
+    for case, title in CASES.items():
+        for noise in (0.0, NOISE):
+            rows = [r for r in doc["results"] if r["case"] == case and r["noise"] == noise]
+            if not rows:
+                continue
+            lines += [
+                f"## Case {case}: {title}; noise {noise * 100:g} %",
+                "",
+                "| n_s | coeff | DEIM ℓ2 | DEIM ℓ∞ | DEIM α@ℓ∞ | DEIM+NN ℓ2 | DEIM+NN ℓ∞ | DEIM+NN α@ℓ∞ | ℓ2 ratio |",
+                "|---|---|---|---|---|---|---|---|---|",
+            ]
+            for r in rows:
+                for coeff in ("CL", "CD"):
+                    d, nn = r["metrics"][coeff]["deim"], r["metrics"][coeff].get("deim_nn")
+                    nn_cells = (
+                        f"{nn['l2']:.3e} | {nn['linf']:.3e} | {nn['alpha_at_linf_deg']:.2f}° | "
+                        f"{d['l2'] / nn['l2']:.1f}×"
+                        if nn
+                        else "– | – | – | –"
+                    )
+                    lines.append(
+                        f"| {r['n_sensors']} | {coeff} | {d['l2']:.3e} | {d['linf']:.3e} | "
+                        f"{d['alpha_at_linf_deg']:.2f}° | {nn_cells} |"
+                    )
+            lines.append("")
+    return "\n".join(lines)
+
+
+def run_paper_tables(args: argparse.Namespace) -> int:
+    try:
+        sensors = sorted({int(x) for x in args.sensors.split(",")})
+    except ValueError:
+        raise UserInputError(f"--sensors: expected comma-separated integers, got {args.sensors!r}") from None
+    if not sensors or min(sensors) < 1 or max(sensors) > 36:
+        raise UserInputError("--sensors: each n_s must be between 1 and 36 (the tunnel taps)")
+    doc = run_airfoil_tables(
+        args.out,
+        sensors=sensors,
+        grid=args.grid,
+        seed=args.seed,
+        max_epochs=args.max_epochs,
+        train_noise=args.train_noise,
+    )
+    print((args.out / "tables.md").read_text())
+    print(f"wrote {args.out / 'tables.md'}, {args.out / 'tables.json'} and plots ({len(doc['results'])} rows)")
+    return 0
