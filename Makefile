@@ -30,7 +30,7 @@ test: lint typecheck
 
 bench: $(STAMP)
 	mkdir -p $(OUT)/bench
-	$(BIN)/python bench/run_all.py --out $(OUT)/bench
+	$(BIN)/python -m bench.run_all --out $(OUT)/bench
 
 clean:
 	rm -rf $(VENV) $(OUT) build *.egg-info .pytest_cache .mypy_cache .ruff_cache

@@ -69,10 +69,24 @@ def bench_deim_select(repeats: int) -> dict[str, Any]:
     return res
 
 
+def bench_discovery_matrix(repeats: int) -> dict[str, Any]:
+    from bench.discovery_bench import hidden_effect_matrix
+
+    return hidden_effect_matrix()
+
+
+def bench_discovery_10_cases(repeats: int) -> dict[str, Any]:
+    from bench.discovery_bench import ten_case_discovery
+
+    return ten_case_discovery()
+
+
 BENCHES: dict[str, Callable[[int], dict[str, Any]]] = {
     "simulate-urans": bench_simulate_urans,
     "aero": bench_aero,
     "deim-select": bench_deim_select,
+    "discovery-matrix": bench_discovery_matrix,
+    "discovery-10-cases": bench_discovery_10_cases,
 }
 
 

@@ -18,7 +18,8 @@ def register(sub: Any) -> None:
         "demo",
         help="run the whole pipeline on the shipped presets",
         description="Simulate the URANS-like and tunnel-like NACA 0015 presets, fit the DEIM model, train "
-        "the correction net (quick grid), evaluate both of the method's cases and print the tables.",
+        "the correction net (quick grid), evaluate both of the method's cases, print the tables, and run the "
+        "discrepancy workflow (URANS preset against the tunnel preset).",
     )
     p.add_argument("--out", type=Path, default=Path("out/demo"), help="output directory (default out/demo)")
     p.set_defaults(func=run_demo)
@@ -58,4 +59,23 @@ def run_demo(args: argparse.Namespace) -> int:
     print()
     print((out / "tables.md").read_text())
     print(f"models in {out / 'models'}, tables and plots in {out} ({len(doc['results'])} table rows)")
+    # 5. discrepancy workflow: what does the URANS-like simulation miss against the tunnel-like data?
+    from vdm_aero_cli.discover import discover
+
+    rep = discover("naca0015-urans", out / "data" / "naca0015-tunnel", out / "discovery")
+    print("\ndiscrepancy workflow: naca0015-urans (simulation) against naca0015-tunnel (measurement)")
+    if rep["unexplained"]:
+        print("  unexplained: no library effect explains the gap; hot spots:")
+        for h in rep["hotspots"][:5]:
+            print(f"    {h['kind']:6} {h['label']:28} {h['share']:6.1%}")
+    for e in rep["effects"]:
+        params = ", ".join(f"{k} = {v:.4g}" for k, v in e["params"].items())
+        print(f"  named {e['name']}: {params} (held-out gain {e['heldout_gain']:.1%}, "
+              f"inclusion {e['inclusion_probability']:.2f})")  # fmt: skip
+    b, a = rep["gap_before"], rep["gap_after"]
+    print(f"  held-out gap before → after (cases {rep['heldout_cases']}):")
+    for k in b["coeff_rms"]:
+        print(f"    RMS {k:3} {b['coeff_rms'][k]:.4f} → {a['coeff_rms'][k]:.4f}")
+    print(f"    RMS Cp  {b['cp_rms']:.4f} → {a['cp_rms']:.4f}")
+    print(f"  report {out / 'discovery' / 'report.md'}, updated spec {out / 'discovery' / 'spec.yaml'}")
     return 0

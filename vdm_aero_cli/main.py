@@ -11,7 +11,7 @@ import sys
 from collections.abc import Sequence
 
 from vdm_aero.errors import UserInputError
-from vdm_aero_cli import cmd_bench, cmd_data, cmd_demo, cmd_model, paper
+from vdm_aero_cli import cmd_bench, cmd_data, cmd_demo, cmd_model, discover, paper
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -23,6 +23,7 @@ def build_parser() -> argparse.ArgumentParser:
     cmd_data.register(sub)
     cmd_model.register(sub)
     paper.register(sub)
+    discover.register(sub)
     cmd_bench.register(sub)
     cmd_demo.register(sub)
     return parser

@@ -24,6 +24,7 @@ Times inside the recursions are in semichords, s = 2·V·t/c. Arrays are (K,) pe
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -160,6 +161,12 @@ class AirfoilFlow:
         self.friction_matrix = force_moment_matrix(g.points_b, tangents_b, g.areas_m2, self.reference)
         self._suction_tables = {side: self._side_table(side) for side in (True, False)}
 
+    def with_effects(self, effects: Mapping[str, Mapping[str, Any]]) -> AirfoilFlow:
+        """The same airfoil (geometry and panel solution reused) with another complete effect set."""
+        other = copy.copy(self)
+        other.effects = {k: dict(v) for k, v in effects.items()}
+        return other
+
     # ----------------------------------------------------------------------------------------- helpers
     def _side_table(self, upper: bool) -> tuple[F64Array, F64Array, F64Array]:
         s = self.panel_surface
@@ -294,14 +301,17 @@ class AirfoilFlow:
             rising = i > 0 and abs(cpl[i]) > abs(cpl[i - 1])
             if tau < 0.0:
                 if rising and abs(cpl[i]) > cn1:
-                    tau = 0.0
+                    # onset inside this step, located by linear interpolation of C_N' (keeps the
+                    # response continuous in cn1, which parameter fits rely on)
+                    tau = dsl[i] * (abs(cpl[i]) - cn1) / (abs(cpl[i]) - abs(cpl[i - 1]))
             else:
                 tau += dsl[i]
                 if tau > 2.0 * tvl:
                     tau = 0.0 if rising and abs(cpl[i]) > cn1 else -1.0
-            if 0.0 < tau <= tvl:
+            if 0.0 <= tau <= tvl and i > 0:
                 e = math.exp(-dsl[i] / tv)
-                cnv = cnv * e + (cll[i] - cll[i - 1]) * math.sqrt(e)
+                feed = min(1.0, tau / dsl[i]) if dsl[i] > 0 else 1.0  # part of this step after onset
+                cnv = cnv * e + feed * (cll[i] - cll[i - 1]) * math.sqrt(e)
             else:
                 cnv *= math.exp(-2.0 * dsl[i] / tv)
             out_cn[i] = cnv
@@ -317,11 +327,18 @@ class AirfoilFlow:
         u = np.clip((surf.x_c[None, :] - st.x_sep[:, None]) / PLATEAU_BLEND_C, 0.0, 1.0)
         return u * u * (3.0 - 2.0 * u) * suction, suction
 
+    def _velocity(self, st: FlowState, surf: EvalSurface) -> F64Array:
+        """Signed tangential velocity /V∞ (K, n) of the potential flow carrying the reduced circulation."""
+        return np.asarray(
+            np.cos(st.alpha_r)[:, None] * surf.ut0[None, :] + np.sin(st.alpha_r)[:, None] * surf.ut90[None, :]
+        )
+
     def cp(self, st: FlowState, surf: EvalSurface) -> F64Array:
         """Surface pressure coefficient (K, n) at the points of ``surf``."""
-        ca, sa = np.cos(st.alpha_r)[:, None], np.sin(st.alpha_r)[:, None]
-        cp = 1.0 - (ca * surf.ut0[None, :] + sa * surf.ut90[None, :]) ** 2
-        w, suction = self._plateau_weight(st, surf)
+        return self._cp(st, surf, self._velocity(st, surf), *self._plateau_weight(st, surf))
+
+    def _cp(self, st: FlowState, surf: EvalSurface, u: F64Array, w: F64Array, suction: F64Array) -> F64Array:
+        cp = 1.0 - u * u
         if "trailing_edge_separation" in self.effects:
             plateau = np.empty(len(st.alpha_r))
             for side in (True, False):
@@ -331,32 +348,41 @@ class AirfoilFlow:
                     st.x_sep[m], xs, u90
                 )
                 plateau[m] = np.maximum(1.0 - us * us, CP_BASE)
-            cp = cp * (1.0 - w) + w * plateau[:, None]
+            cp += w * (plateau[:, None] - cp)
         if "leading_edge_vortex" in self.effects:
-            on = np.isfinite(st.lev_x)
-            xv = np.where(on, st.lev_x, 0.0)
-            width = LEV_WIDTH_C[0] + (LEV_WIDTH_C[1] - LEV_WIDTH_C[0]) * np.clip(xv, 0.0, 1.0)
-            amp = np.where(on, st.lev_cn, 0.0) / (width * math.sqrt(math.pi))
-            bump = np.exp(-(((surf.x_c[None, :] - xv[:, None]) / width[:, None]) ** 2))
-            cp = cp - suction * np.abs(amp)[:, None] * bump
+            on = np.flatnonzero(np.isfinite(st.lev_x) & (st.lev_cn != 0.0))
+            if on.size:  # only the samples with a vortex (the bump is the costly part)
+                xv = st.lev_x[on]
+                width = LEV_WIDTH_C[0] + (LEV_WIDTH_C[1] - LEV_WIDTH_C[0]) * np.clip(xv, 0.0, 1.0)
+                amp = np.abs(st.lev_cn[on]) / (width * math.sqrt(math.pi))
+                bump = np.exp(-(((surf.x_c[None, :] - xv[:, None]) / width[:, None]) ** 2))
+                cp[on] -= suction[on] * amp[:, None] * bump
         if "added_mass" in self.effects:
             xi = 2.0 * surf.x_c - 1.0
             sq = np.sqrt(np.clip(1.0 - xi * xi, 0.0, None))
             a = 2.0 * self.pivot_x_c - 1.0
             dcp = st.nc_a[:, None] * sq[None, :] + st.nc_b[:, None] * ((xi / 2.0 - a) * sq)[None, :]
-            cp = cp + np.where(surf.upper[None, :], -0.5, 0.5) * dcp
+            cp += np.where(surf.upper[None, :], -0.5, 0.5) * dcp
         return np.asarray(cp)
+
+    def _friction(self, u: F64Array, w: F64Array) -> F64Array:
+        if "viscous_drag" not in self.effects:
+            return np.zeros((len(u), 6))
+        traction = self.param("viscous_drag", "cf") * u * np.abs(u) * (1.0 - w)
+        return np.asarray(traction @ self.friction_matrix.T)
 
     def friction_coeffs(self, st: FlowState) -> F64Array:
         """Skin-friction body-axis coefficients (K, 6) on attached panels; zero without viscous_drag."""
-        k = len(st.alpha_r)
-        if "viscous_drag" not in self.effects:
-            return np.zeros((k, 6))
         surf = self.panel_surface
-        u = np.cos(st.alpha_r)[:, None] * surf.ut0[None, :] + np.sin(st.alpha_r)[:, None] * surf.ut90[None, :]
-        w, _ = self._plateau_weight(st, surf)
-        traction = self.param("viscous_drag", "cf") * u * np.abs(u) * (1.0 - w)
-        return np.asarray(traction @ self.friction_matrix.T)
+        return self._friction(self._velocity(st, surf), self._plateau_weight(st, surf)[0])
+
+    def panel_cp_and_truth(self, st: FlowState) -> tuple[F64Array, F64Array]:
+        """(Cp on all panels (K, N), truth coefficients (K, 6)) sharing one velocity/plateau evaluation."""
+        surf = self.panel_surface
+        u = self._velocity(st, surf)
+        w, suction = self._plateau_weight(st, surf)
+        cp = self._cp(st, surf, u, w, suction)
+        return cp, np.asarray(cp @ self.force_matrix.T + self._friction(u, w))
 
     def truth_coeffs(self, st: FlowState, cp_panels: F64Array) -> F64Array:
         """Ground-truth body-axis coefficients (K, 6): pressure integral on all panels + friction."""

@@ -86,8 +86,7 @@ class AirfoilSimulator:
         """Simulate a prescribed α(t). The first ``warmup`` samples settle the lags and are dropped."""
         flow = self.flow
         st = flow.march(t, alpha, alpha_dot, alpha_ddot)
-        cp_panels = flow.cp(st, flow.panel_surface)
-        coeffs = flow.truth_coeffs(st, cp_panels)
+        cp_panels, coeffs = flow.panel_cp_and_truth(st)
         cp = cp_panels if self.spec.taps is None else flow.cp(st, self.out_surface)
         if "port_lag" in self.effects:
             cp = first_order_lag(t, cp, float(self.effects["port_lag"]["tau_s"]))
