@@ -909,7 +909,9 @@ def _yaml_document(ds: Dataset) -> dict[str, Any]:
 def _write_small_files(directory: Path, ds: Dataset) -> None:
     """Write ``dataset.yaml`` and every array except ``cp.npy`` into ``directory``."""
     try:
-        text = yaml.safe_dump(_plain(_yaml_document(ds)), sort_keys=False, default_flow_style=False, allow_unicode=True)
+        text = yaml.safe_dump(
+            to_plain(_yaml_document(ds)), sort_keys=False, default_flow_style=False, allow_unicode=True
+        )
     except yaml.YAMLError as exc:
         raise DatasetError(f"{YAML_FILE}: metadata cannot be written as YAML ({_one_line(exc)})") from exc
     (directory / YAML_FILE).write_text(text, encoding="utf-8")
@@ -1153,14 +1155,14 @@ def _as_int64(value: Any) -> NDArray[Any]:
     return arr
 
 
-def _plain(value: Any) -> Any:
-    """Convert numpy scalars/arrays and tuples to plain Python for ``yaml.safe_dump``."""
+def to_plain(value: Any) -> Any:
+    """Convert numpy scalars/arrays and tuples to plain Python for ``yaml.safe_dump`` / ``json.dumps``."""
     if isinstance(value, Mapping):
-        return {_plain(k): _plain(v) for k, v in value.items()}
+        return {to_plain(k): to_plain(v) for k, v in value.items()}
     if isinstance(value, list | tuple):
-        return [_plain(v) for v in value]
+        return [to_plain(v) for v in value]
     if isinstance(value, np.ndarray):
-        return _plain(value.tolist())
+        return to_plain(value.tolist())
     if isinstance(value, np.generic):
         return value.item()
     return value

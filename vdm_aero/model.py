@@ -27,7 +27,7 @@ import numpy as np
 import yaml
 
 from vdm_aero._typing import COEFF_NAMES, F64Array, FloatArray
-from vdm_aero.dataset import Reference
+from vdm_aero.dataset import Reference, to_plain
 from vdm_aero.errors import ModelError
 from vdm_aero.ports import Port
 
@@ -320,7 +320,7 @@ def write_model(
             "ports": [{"name": p.name, "point_b": list(p.point_b), "normal_b": list(p.normal_b)} for p in ports],
             "files": {f.name: sha256_file(f) for f in sorted(tmp.iterdir())},
         }
-        (tmp / "model.yaml").write_text(yaml.safe_dump(_plain(doc), sort_keys=False, allow_unicode=True))
+        (tmp / "model.yaml").write_text(yaml.safe_dump(to_plain(doc), sort_keys=False, allow_unicode=True))
         if root.exists():
             old = Path(tempfile.mkdtemp(prefix=f".{root.name}.old.", dir=root.parent))
             os.rename(root, old / "m")
@@ -338,16 +338,3 @@ def load_diagnostics(path: str | Path) -> dict[str, np.ndarray]:
     """Offline extras stored in deim.npz (singular values, projection error, basis at ports…)."""
     with np.load(Path(path) / DEIM_FILE, allow_pickle=False) as z:
         return {k: np.asarray(z[k]) for k in z.files if k not in _DEIM_ARRAYS}
-
-
-def _plain(x: Any) -> Any:
-    """numpy scalars/arrays and tuples → plain YAML types."""
-    if isinstance(x, Mapping):
-        return {str(k): _plain(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_plain(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _plain(x.tolist())
-    if isinstance(x, np.generic):
-        return x.item()
-    return x

@@ -13,7 +13,7 @@ import numpy as np
 import yaml
 
 from vdm_aero.coefficients import lift_drag
-from vdm_aero.dataset import Dataset, load_dataset
+from vdm_aero.dataset import Dataset, load_dataset, to_plain
 from vdm_aero.discrepancy import (
     MIN_ABSOLUTE_GAIN,
     MIN_EXPLAINED_SHARE,
@@ -86,7 +86,7 @@ def discover(spec_source: str, measured_path: Path, out: Path, *, seed: int = 0)
     new_spec["source"] = f"{spec.source} + discovered against {measured.name}: " + (
         ", ".join(e["name"] for e in result["effects"]) or "nothing named"
     )
-    (out / "spec.yaml").write_text(yaml.safe_dump(_plain(new_spec), sort_keys=False, allow_unicode=True))
+    (out / "spec.yaml").write_text(yaml.safe_dump(to_plain(new_spec), sort_keys=False, allow_unicode=True))
     report = {
         "effects": result["effects"],
         "gap_before": _gap(gap_before),
@@ -111,7 +111,7 @@ def discover(spec_source: str, measured_path: Path, out: Path, *, seed: int = 0)
         "simulations": disc.n_evals,
         "seconds": round(time.perf_counter() - t0, 2),
     }
-    (out / "report.json").write_text(json.dumps(_plain(report), indent=2))
+    (out / "report.json").write_text(json.dumps(to_plain(report), indent=2))
     (out / "report.md").write_text(report_markdown(report))
     _plots(replay, disc, base, final, held, out)
     return report
@@ -119,16 +119,6 @@ def discover(spec_source: str, measured_path: Path, out: Path, *, seed: int = 0)
 
 def _gap(g: dict[str, Any]) -> dict[str, Any]:
     return {"coeff_rms": g["coeff_rms"], "cp_rms": g["cp_rms"], "port_cp_rms": g["port_cp_rms"]}
-
-
-def _plain(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {str(k): _plain(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_plain(v) for v in x]
-    if isinstance(x, np.generic):
-        return x.item()
-    return x
 
 
 def report_markdown(r: dict[str, Any]) -> str:
@@ -220,7 +210,7 @@ def _plots(replay: Any, disc: Discovery, base: Any, final: Any, held: list[int],
 def run_discover(args: argparse.Namespace) -> int:
     report = discover(args.sim, args.measured, args.out, seed=args.seed)
     if args.json:
-        print(json.dumps(_plain(report), indent=2))
+        print(json.dumps(to_plain(report), indent=2))
         return 0
     named = ", ".join(
         f"{e['name']} ({', '.join(f'{k}={v:.4g}' for k, v in e['params'].items())})" for e in report["effects"]
