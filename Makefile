@@ -12,7 +12,7 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install --quiet --upgrade pip
 	# torch first, by exact version: it resolves to the local CPU wheel, never the CUDA build
 	$(BIN)/pip install --quiet "torch==2.13.0"
-	$(BIN)/pip install --quiet -e ".[sim,train,dev]"
+	$(BIN)/pip install --quiet -e ".[sim,train,dask,dev]"
 	touch $(STAMP)
 
 demo: $(STAMP)

@@ -69,6 +69,14 @@ def bench_deim_select(repeats: int) -> dict[str, Any]:
     return res
 
 
+def bench_fit_scale(repeats: int) -> dict[str, Any]:
+    """POD + DEIM on 300,000 points x 2,000 float32 snapshots, memory-mapped; bars ≤ 60 s, peak RSS ≤ 2x."""
+    from vdm_aero.fit_scale import bench_fit_scale as run
+
+    res = run(300_000, 2_000)
+    return {k: v for k, v in res.items() if k not in ("sensors", "lines")}
+
+
 def bench_discovery_matrix(repeats: int) -> dict[str, Any]:
     from bench.discovery_bench import hidden_effect_matrix
 
@@ -85,6 +93,7 @@ BENCHES: dict[str, Callable[[int], dict[str, Any]]] = {
     "simulate-urans": bench_simulate_urans,
     "aero": bench_aero,
     "deim-select": bench_deim_select,
+    "fit-scale": bench_fit_scale,
     "discovery-matrix": bench_discovery_matrix,
     "discovery-10-cases": bench_discovery_10_cases,
 }

@@ -93,3 +93,26 @@ def test_paper_tables_smoke(tmp_path: Path) -> None:
     assert "## Case 2" in md and "| 5 | CL |" in md
     for png in ("case1-ns5-predictions.png", "case2-ns5-sensors.png"):
         assert (out / png).read_bytes()[:4] == b"\x89PNG"
+
+
+def test_paper_tables_uav_smoke(tmp_path: Path) -> None:
+    out = tmp_path / "uav"
+    assert main(["paper-tables", "--case", "uav", "--out", str(out), "--sensors", "5", "--grid", "quick",
+                 "--max-epochs", "20"]) == 0  # fmt: skip
+    doc = json.loads((out / "tables.json").read_text())
+    assert {(r["case"], r["noise"], r["n_sensors"]) for r in doc["results"]} == {(3, 0.0, 5), (3, 0.015, 5)}
+    assert (out / "uav-ns5-ports.png").read_bytes()[:4] == b"\x89PNG"
+    assert (out / "data" / "uav-pitch" / "states.npy").is_file()
+
+
+def test_simulate_airframe_preset_streams_to_disk(tmp_path: Path) -> None:
+    from vdm_aero.dataset import load_dataset
+
+    assert main(["simulate", "uav-envelope", "--out", str(tmp_path / "env")]) == 0
+    ds = load_dataset(tmp_path / "env")
+    assert ds.cp.dtype.name == "float32" and ds.coeffs is not None and ds.coeffs.shape == (ds.n_snapshots, 6)
+    import numpy as np
+
+    states = np.load(tmp_path / "env" / "states.npy")
+    assert states.shape == (ds.n_snapshots, 10)
+    np.testing.assert_allclose(states[:, 1], ds.alpha)

@@ -19,11 +19,18 @@ from vdm_aero.errors import UserInputError
 def register(sub: Any) -> None:
     p = sub.add_parser(
         "bench",
-        help="benchmarks: aero (run-time latency), deim-select",
+        help="benchmarks: aero (run-time latency), deim-select, fit-scale",
         description="aero: median single-sample latency of the run-time path (10 ports, 4x40 net); "
-        "deim-select: DEIM over 300,000 candidates x 15 modes.",
+        "deim-select: DEIM over 300,000 candidates x 15 modes; fit-scale: POD + DEIM on a memory-mapped "
+        "float32 snapshot set of --points x --snapshots (written to a temporary directory first, not timed).",
     )
-    p.add_argument("which", choices=("aero", "deim-select"))
+    p.add_argument("which", choices=("aero", "deim-select", "fit-scale"))
+    p.add_argument("--points", type=int, default=300_000, help="fit-scale: surface points N")
+    p.add_argument("--snapshots", type=int, default=2_000, help="fit-scale: snapshots M")
+    p.add_argument("--method", choices=("snapshots", "randomized"), default="snapshots", help="fit-scale: POD route")
+    p.add_argument(
+        "--workdir", type=Path, help="fit-scale: where to write the synthetic data set (default: a temp dir)"
+    )
     p.add_argument("--json", action="store_true", help="print JSON only")
     p.add_argument("--ports", type=int, default=10)
     p.add_argument("--seed", type=int, default=0)
@@ -101,7 +108,18 @@ def bench_deim_select(seed: int = 0) -> dict[str, Any]:
 
 
 def run_bench(args: argparse.Namespace) -> int:
-    res = bench_aero(args.ports, args.seed) if args.which == "aero" else bench_deim_select(args.seed)
+    if args.which == "aero":
+        res = bench_aero(args.ports, args.seed)
+    elif args.which == "deim-select":
+        res = bench_deim_select(args.seed)
+    else:
+        from vdm_aero.fit_scale import bench_fit_scale
+
+        try:
+            res = bench_fit_scale(args.points, args.snapshots, workdir=args.workdir, seed=args.seed, method=args.method)
+        except ValueError as e:
+            raise UserInputError(f"bench fit-scale: {e}") from None
+        res = {k: v for k, v in res.items() if k not in ("sensors", "lines")}
     if args.json:
         print(json.dumps(res))
     else:

@@ -51,18 +51,30 @@ def load_any_spec(name_or_path: str) -> Any:
     kind = data.get("kind") if isinstance(data, dict) else None
     if kind == "airfoil":
         return parse_spec(data, origin=origin)
-    raise SpecError(f"{origin}: kind: expected one of [airfoil], got {kind!r}")
+    if kind == "airframe":
+        from sim.airframe.spec import parse_airframe_spec
+
+        return parse_airframe_spec(data, origin=origin)
+    raise SpecError(f"{origin}: kind: expected one of [airfoil, airframe], got {kind!r}")
 
 
 def simulate_to(name_or_path: str, out: Path, *, quiet: bool = False) -> Path:
     """Simulate a spec/preset and write the data set; returns its path."""
     from sim.airfoil.simulate import simulate_spec
+    from sim.airfoil.spec import AirfoilSpec
 
     spec = load_any_spec(name_or_path)
-    with progress_bar(f"simulate {spec.name}", len(spec.motion.freqs_hz)) as update:
-        ds = simulate_spec(spec, progress=update)
-    path = write_dataset(out, ds)
+    if isinstance(spec, AirfoilSpec):
+        with progress_bar(f"simulate {spec.name}", len(spec.motion.freqs_hz)) as update:
+            path = write_dataset(out, simulate_spec(spec, progress=update))
+    else:
+        from sim.airframe.simulate import write_airframe_dataset
+
+        # streams Cp to disk through a memory map (300,000-point surfaces do not fit as float64)
+        with progress_bar(f"simulate {spec.name}", spec.n_cases) as update:
+            path = write_airframe_dataset(spec, out, progress=update)
     if not quiet:
+        ds = load_dataset(path, check_values=False)
         print(f"wrote {path}: {ds.n_snapshots} snapshots x {ds.n_points} points, {len(ds.cases)} cases")
     return path
 

@@ -21,9 +21,11 @@ from vdm_aero_cli.cmd_data import simulate_to
 from vdm_aero_cli.progress import progress_bar
 
 NOISE = 0.015
+AIRFOIL_CASES = (1, 2)
 CASES = {
     1: "DEIM on experiment data",
     2: "DEIM on simulation data, candidates nearest the taps, experiment inputs",
+    3: "3-D UAV: DEIM on simulation data, every surface point a candidate",
 }
 
 
@@ -34,9 +36,9 @@ def register(sub: Any) -> None:
         description="Simulate the presets, fit, train and evaluate both of the method's cases for each n_s, "
         "and write tables (Markdown + JSON) and plots.",
     )
-    p.add_argument("--case", choices=("airfoil",), required=True, help="which test case of the method")
+    p.add_argument("--case", choices=("airfoil", "uav"), required=True, help="which test case of the method")
     p.add_argument("--out", type=Path, required=True, metavar="DIR")
-    p.add_argument("--sensors", default="5,8,10", help="comma-separated n_s values (default 5,8,10)")
+    p.add_argument("--sensors", help="comma-separated n_s values (default 5,8,10 airfoil; 5,10,15 uav)")
     p.add_argument("--grid", choices=("paper", "quick"), default="paper")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--max-epochs", type=int, default=3000)
@@ -73,7 +75,7 @@ def run_airfoil_tables(
     tunnel = load_dataset(simulate_to("naca0015-tunnel", data / "naca0015-tunnel", quiet=quiet))
     roles = case_roles(tunnel)
     results: list[dict[str, Any]] = []
-    jobs = [(case, n) for case in CASES for n in sensors]
+    jobs = [(case, n) for case in AIRFOIL_CASES for n in sensors]
     with progress_bar("paper tables", len(jobs)) as update:
         for k, (case, n) in enumerate(jobs):
             mdir = out / "models" / f"case{case}-ns{n}"
@@ -109,9 +111,61 @@ def run_airfoil_tables(
     return doc
 
 
+def run_uav_tables(
+    out: Path,
+    *,
+    sensors: list[int],
+    grid: str,
+    seed: int,
+    max_epochs: int,
+    train_noise: float,
+    quiet: bool = False,
+) -> dict[str, Any]:
+    """The method's 3-D case: DEIM on the simulated pitching UAV (every surface point a candidate), the
+    net trained on the training frequencies, selected on the validation one, evaluated on the test one."""
+    from vdm_aero.pipeline import evaluate_model, fit_model, predictions, train_model
+    from vdm_aero_cli.plots import plot_ports_3d, plot_predictions
+
+    ds = load_dataset(simulate_to("uav-pitch", out / "data" / "uav-pitch", quiet=quiet))
+    roles = case_roles(ds)
+    results: list[dict[str, Any]] = []
+    with progress_bar("paper tables (uav)", len(sensors)) as update:
+        for k, n in enumerate(sensors):
+            mdir = out / "models" / f"uav-ns{n}"
+            fit_model(ds, mdir, n_sensors=n, cases=roles["train"])
+            train_model(
+                mdir,
+                ds,
+                train_cases=roles["train"],
+                val_cases=roles["validation"],
+                grid=grid,
+                seed=seed,
+                max_epochs=max_epochs,
+                train_noise=train_noise,
+            )
+            model = AeroModel.load(mdir)
+            for noise in (0.0, NOISE):
+                r = evaluate_model(model, ds, roles["test"], noise=noise, seed=seed)
+                r["case"] = 3
+                r["selected_net"] = model.meta["training"]["selected"]
+                results.append(r)
+            if n == max(sensors):
+                plot_predictions(predictions(model, ds, roles["test"]), out / f"uav-ns{n}-predictions.png",
+                                 title=f"UAV pitching, n_s = {n}, test case {roles['test']}")  # fmt: skip
+                plot_ports_3d(ds, model, out / f"uav-ns{n}-ports.png")
+            update(k + 1, len(sensors))
+    doc = {"case": "uav", "grid": grid, "seed": seed, "train_noise": train_noise, "results": results}
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "tables.json").write_text(json.dumps(doc, indent=2))
+    (out / "tables.md").write_text(tables_markdown(doc))
+    return doc
+
+
 def tables_markdown(doc: dict[str, Any]) -> str:
     lines = [
-        "# Method tables: pitching NACA 0015 (vdm-aero presets)",
+        "# Method tables: "
+        + ("pitching NACA 0015" if doc["case"] == "airfoil" else "pitching 3-D UAV")
+        + " (vdm-aero presets)",
         "",
         "Errors on the held-out test case: ℓ2 = ‖ŷ−y‖₂/‖y‖₂, ℓ∞ = max|ŷ−y|/max|y|, α at the ℓ∞ error.",
         f"Correction-net grid: {doc['grid']}; seed {doc['seed']}; training input noise {doc['train_noise']:g}.",
@@ -146,13 +200,16 @@ def tables_markdown(doc: dict[str, Any]) -> str:
 
 
 def run_paper_tables(args: argparse.Namespace) -> int:
+    text = args.sensors or ("5,8,10" if args.case == "airfoil" else "5,10,15")
     try:
-        sensors = sorted({int(x) for x in args.sensors.split(",")})
+        sensors = sorted({int(x) for x in text.split(",")})
     except ValueError:
-        raise UserInputError(f"--sensors: expected comma-separated integers, got {args.sensors!r}") from None
-    if not sensors or min(sensors) < 1 or max(sensors) > 36:
-        raise UserInputError("--sensors: each n_s must be between 1 and 36 (the tunnel taps)")
-    doc = run_airfoil_tables(
+        raise UserInputError(f"--sensors: expected comma-separated integers, got {text!r}") from None
+    limit = 36 if args.case == "airfoil" else 200
+    if not sensors or min(sensors) < 1 or max(sensors) > limit:
+        raise UserInputError(f"--sensors: each n_s must be between 1 and {limit}")
+    run = run_airfoil_tables if args.case == "airfoil" else run_uav_tables
+    doc = run(
         args.out,
         sensors=sensors,
         grid=args.grid,

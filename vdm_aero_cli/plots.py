@@ -107,3 +107,37 @@ def plot_model_diagnostics(model_dir: Path, out: Path, *, title: str) -> None:
     fig.tight_layout()
     fig.savefig(out, dpi=110)
     plt.close(fig)
+
+
+def plot_ports_3d(ds: Dataset, model: Any, out: Path, *, max_points: int = 40_000) -> None:
+    """The selected ports on the 3-D surface, numbered in DEIM order, and a Cp surface snapshot."""
+    from vdm_aero.pipeline import port_columns
+
+    plt = _pyplot()
+    pts = np.asarray(ds.points)
+    step = max(1, len(pts) // max_points)
+    sub = slice(None, None, step)
+    cols = port_columns(model, ds)
+    row = int(np.argmax(np.asarray(ds.alpha)))  # the highest-incidence snapshot
+    cp = np.asarray(ds.cp[row], dtype=np.float64)
+    fig = plt.figure(figsize=(16, 6.5))
+    for j, (title, colour) in enumerate(
+        (("ports in DEIM order", None), (f"C_p at α = {np.degrees(ds.alpha[row]):.1f}°", cp))
+    ):
+        ax = fig.add_subplot(1, 2, j + 1, projection="3d")
+        # FRD → plot x forward, y right, up = −z
+        if colour is None:
+            ax.scatter(pts[sub, 0], pts[sub, 1], -pts[sub, 2], s=0.3, c="0.7", alpha=0.4)
+            ax.scatter(pts[cols, 0], pts[cols, 1], -pts[cols, 2], s=30, c="tab:red", depthshade=False)
+            for k, i in enumerate(cols):
+                ax.text(pts[i, 0], pts[i, 1], -pts[i, 2] + 0.02, str(k + 1), fontsize=9, color="k")
+        else:
+            sc = ax.scatter(pts[sub, 0], pts[sub, 1], -pts[sub, 2], s=0.6, c=colour[sub], cmap="RdBu",
+                            vmin=-2.5, vmax=1.0)  # fmt: skip
+            fig.colorbar(sc, ax=ax, shrink=0.6, label="C_p")
+        ax.set(xlabel="x_b [m]", ylabel="y_b [m]", zlabel="−z_b [m]", title=title)
+        ax.set_box_aspect((np.ptp(pts[:, 0]), np.ptp(pts[:, 1]), max(np.ptp(pts[:, 2]), 0.2)))
+        ax.view_init(elev=35, azim=-125)
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)

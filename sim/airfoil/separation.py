@@ -103,10 +103,13 @@ def calibrate_static_separation(flow: AirfoilFlow, airfoil: str, reynolds: float
     ar = np.radians(a)
     cn_polar = cl * np.cos(ar) + cd * np.sin(ar)
     lin = (a >= SLOPE_WINDOW_DEG[0]) & (a <= SLOPE_WINDOW_DEG[1])
-    cn_pot = flow.cn_attached(ar[lin] + flow.alpha_0l)
+    # κ from C_N,polar(α) ≈ κ·C_N,potential(α) over the linear range (the model's own statement: the
+    # circulation about the zero-lift angle is scaled), as a least-squares ratio at the geometric α
+    cn_pot = flow.cn_attached(ar[lin])
     slope_factor = float(np.clip(np.sum(cn_polar[lin] * cn_pot) / np.sum(cn_pot * cn_pot), 0.5, 1.0))
     f = separation_from_polar(flow, a, cn_polar, slope_factor)
-    return {**fit_f_static(a, f), "slope_factor": round(slope_factor, 4)}
+    # f(α) is a function of the incidence above the zero-lift angle (see flow.f_static)
+    return {**fit_f_static(a - np.degrees(flow.alpha_0l), f), "slope_factor": round(slope_factor, 4)}
 
 
 def complete_effects(

@@ -7,7 +7,7 @@ which is calibrated from a viscous polar when its parameters are left out.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -15,6 +15,7 @@ from typing import Any
 import yaml
 
 from sim.airfoil.effects import EFFECTS, PORT_BIAS_RANGE_CP
+from sim.spec_reader import SpecReader as _Reader
 from vdm_aero.errors import SpecError
 
 CASE_ROLES = ("train", "validation", "test", "unassigned")
@@ -113,71 +114,6 @@ class AirfoilSpec:
         d = self.to_dict()
         d["effects"] = {k: dict(v) for k, v in effects.items()}
         return parse_spec(d, origin=self.origin)
-
-
-class _Reader:
-    """Typed access to one mapping of the spec with errors that name the file and the key path."""
-
-    def __init__(self, data: Any, origin: str, path: str) -> None:
-        if not isinstance(data, Mapping):
-            raise SpecError(f"{origin}: {path or 'spec'}: expected a mapping, got {type(data).__name__}")
-        self.data = data
-        self.origin = origin
-        self.path = path
-        self.used: set[str] = set()
-
-    def key(self, k: str) -> str:
-        return f"{self.path}.{k}" if self.path else k
-
-    def fail(self, k: str, msg: str) -> SpecError:
-        return SpecError(f"{self.origin}: {self.key(k)}: {msg}")
-
-    def raw(self, k: str, default: Any = ...) -> Any:
-        self.used.add(k)
-        if k not in self.data:
-            if default is ...:
-                raise self.fail(k, "missing required key")
-            return default
-        return self.data[k]
-
-    def num(self, k: str, default: Any = ..., *, positive: bool = False, lo: float | None = None,
-            hi: float | None = None) -> float:  # fmt: skip
-        v = self.raw(k, default)
-        if isinstance(v, bool) or not isinstance(v, int | float):
-            raise self.fail(k, f"expected a number, got {v!r}")
-        x = float(v)
-        if x != x or x in (float("inf"), float("-inf")):
-            raise self.fail(k, f"must be finite, got {v!r}")
-        if positive and x <= 0:
-            raise self.fail(k, f"must be > 0, got {v!r}")
-        if (lo is not None and x < lo) or (hi is not None and x > hi):
-            raise self.fail(k, f"must be in [{lo}, {hi}], got {v!r}")
-        return x
-
-    def integer(self, k: str, default: Any = ..., *, lo: int = 0) -> int:
-        v = self.raw(k, default)
-        if isinstance(v, bool) or not isinstance(v, int):
-            raise self.fail(k, f"expected an integer, got {v!r}")
-        if v < lo:
-            raise self.fail(k, f"must be ≥ {lo}, got {v}")
-        return int(v)
-
-    def text(self, k: str, default: Any = ...) -> str:
-        v = self.raw(k, default)
-        if not isinstance(v, str):
-            raise self.fail(k, f"expected a string, got {v!r}")
-        return v
-
-    def seq(self, k: str, default: Any = ...) -> Sequence[Any]:
-        v = self.raw(k, default)
-        if not isinstance(v, list | tuple):
-            raise self.fail(k, f"expected a list, got {v!r}")
-        return v
-
-    def finish(self) -> None:
-        unknown = sorted(set(self.data) - self.used, key=str)
-        if unknown:
-            raise self.fail(str(unknown[0]), f"unknown key (allowed: {', '.join(sorted(self.used))})")
 
 
 def _parse_effects(data: Any, origin: str) -> dict[str, dict[str, Any]]:
