@@ -35,6 +35,7 @@ MODEL_FORMAT = "vdm-aero-model/1"
 DEIM_FILE = "deim.npz"
 NET_FILE = "correction.onnx"
 _DEIM_ARRAYS = ("Us", "mean_s", "SU", "Smean", "sensors")
+_PRIOR_ARRAYS = ("mode_std", "tail_var")  # optional: the gappy prior
 
 
 def sha256_file(path: Path) -> str:
@@ -57,6 +58,8 @@ class LinearModel:
     mean_s: F64Array
     SU: F64Array
     Smean: F64Array
+    mode_std: F64Array | None = None  # (n_b,) std of each POD coefficient over the fit snapshots, σ_i/√M
+    tail_var: float = 0.0  # per-point variance the truncated modes leave, Σ_{i>n_b} σ_i² / (M·N)
     Ms: F64Array = field(init=False)
     M0: F64Array = field(init=False)
 
@@ -74,12 +77,22 @@ class LinearModel:
         return int(self.Us.shape[1])
 
     def fill_matrix(self, present: np.ndarray) -> tuple[F64Array, F64Array]:
-        """(A, b) with cp_missing = A·(cp_present − mean_present) + b: the gappy reconstruction."""
-        k = min(self.n_modes, int(present.sum()))
-        if k == 0:
+        """(A, b) with cp_missing = A·(cp_present − mean_present) + b: the gappy reconstruction.
+
+        With the POD statistics (``mode_std``, ``tail_var``) it is the MAP estimate of all n_b mode
+        coefficients under their snapshot prior, a = (U_pᵀU_p + tail_var·diag(1/mode_std²))⁻¹ U_pᵀ y:
+        well-posed with fewer ports than modes and it shrinks poorly observed modes towards the mean
+        instead of extrapolating them. Without them, plain least squares on the leading modes."""
+        n_present = int(present.sum())
+        if n_present == 0:
             raise ValueError("no port present: nothing to reconstruct from")
-        u_p = self.Us[present, :k]
-        a = self.Us[~present, :k] @ np.linalg.pinv(u_p)
+        if self.mode_std is not None and self.tail_var > 0.0:
+            u_p = self.Us[present]
+            prior = self.tail_var / np.maximum(self.mode_std, 1e-300) ** 2
+            a_map = np.linalg.solve(u_p.T @ u_p + np.diag(prior), u_p.T)
+            return self.Us[~present] @ a_map, self.mean_s[~present]
+        k = min(self.n_modes, n_present)
+        a = self.Us[~present, :k] @ np.linalg.pinv(self.Us[present, :k])
         return a, self.mean_s[~present]
 
 
@@ -218,6 +231,7 @@ class AeroModel:
         try:
             with np.load(root / DEIM_FILE, allow_pickle=False) as z:
                 arrays = {k: np.asarray(z[k]) for k in _DEIM_ARRAYS}
+                prior = {k: np.asarray(z[k]) for k in _PRIOR_ARRAYS if k in z.files}
         except (KeyError, ValueError, OSError) as e:
             raise ModelError(f"{root / DEIM_FILE}: unreadable or incomplete ({e})") from None
         n_s, n_b = arrays["Us"].shape if arrays["Us"].ndim == 2 else (-1, -1)
@@ -237,11 +251,16 @@ class AeroModel:
             reference = Reference(float(ref["area_m2"]), float(ref["chord_m"]), float(ref["span_m"]))
         except (KeyError, TypeError, ValueError):
             raise ModelError(f"{root / 'model.yaml'}: reference: needs area_m2, chord_m, span_m") from None
+        mode_std = prior.get("mode_std")
+        if mode_std is not None and mode_std.shape != (n_b,):
+            raise ModelError(f"{root / DEIM_FILE}: mode_std has shape {mode_std.shape}, expected ({n_b},)")
         linear = LinearModel(
             Us=arrays["Us"].astype(np.float64),
             mean_s=arrays["mean_s"].astype(np.float64),
             SU=arrays["SU"].astype(np.float64),
             Smean=arrays["Smean"].astype(np.float64),
+            mode_std=None if mode_std is None else mode_std.astype(np.float64),
+            tail_var=float(prior["tail_var"]) if "tail_var" in prior else 0.0,
         )
         net = root / NET_FILE if NET_FILE in files else None
         return cls(linear=linear, ports=ports, reference=reference, meta=meta, net_path=net, path=root)
@@ -305,6 +324,8 @@ def write_model(
             Smean=linear.Smean,
             sensors=np.asarray(sensors, np.int64),
         )
+        if linear.mode_std is not None:
+            arrays.update(mode_std=linear.mode_std, tail_var=np.float64(linear.tail_var))
         np.savez(tmp / DEIM_FILE, **arrays)
         if net_onnx is not None:
             (tmp / NET_FILE).write_bytes(net_onnx)
@@ -337,4 +358,4 @@ def write_model(
 def load_diagnostics(path: str | Path) -> dict[str, np.ndarray]:
     """Offline extras stored in deim.npz (singular values, projection error, basis at ports…)."""
     with np.load(Path(path) / DEIM_FILE, allow_pickle=False) as z:
-        return {k: np.asarray(z[k]) for k in z.files if k not in _DEIM_ARRAYS}
+        return {k: np.asarray(z[k]) for k in z.files if k not in _DEIM_ARRAYS + _PRIOR_ARRAYS}

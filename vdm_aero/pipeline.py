@@ -55,11 +55,16 @@ def fit_model(
     est = DEIMForceModel(n_sensors=n_sensors, n_modes=n_modes, method=method, candidates=candidates)
     est.fit(ds.cp, S)
     sensors = np.asarray(est.sensors_, dtype=np.int64)
+    m_snap = ds.n_snapshots
+    pod = est.pod_
+    kept = float(np.sum(np.asarray(est.singular_values_, dtype=np.float64) ** 2))
     linear = LinearModel(
         Us=np.asarray(est.port_modes_, dtype=np.float64),
         mean_s=np.asarray(est.mean_, dtype=np.float64)[sensors],
         SU=np.asarray(est.force_modes_, dtype=np.float64),
         Smean=np.asarray(est.force_mean_, dtype=np.float64),
+        mode_std=np.asarray(est.singular_values_, dtype=np.float64) / np.sqrt(m_snap),
+        tail_var=max(float(pod.total_energy) - kept, 0.0) / (m_snap * ds.n_points),
     )
     # diagnostics: scaled singular values and projection error vs n_b from a wider basis
     from vdm_aero.pod import pod_basis
