@@ -77,6 +77,13 @@ def bench_fit_scale(repeats: int) -> dict[str, Any]:
     return {k: v for k, v in res.items() if k not in ("sensors", "lines")}
 
 
+def bench_flight_10min(repeats: int) -> dict[str, Any]:
+    """10 minutes of flight with all sensors, in process without sockets; bar ≤ 30 s."""
+    from bench.flight_bench import bench_flight
+
+    return bench_flight(minutes=10)
+
+
 def bench_discovery_matrix(repeats: int) -> dict[str, Any]:
     from bench.discovery_bench import hidden_effect_matrix
 
@@ -94,6 +101,7 @@ BENCHES: dict[str, Callable[[int], dict[str, Any]]] = {
     "aero": bench_aero,
     "deim-select": bench_deim_select,
     "fit-scale": bench_fit_scale,
+    "flight-10min": bench_flight_10min,
     "discovery-matrix": bench_discovery_matrix,
     "discovery-10-cases": bench_discovery_10_cases,
 }

@@ -1,0 +1,209 @@
+"""The flight environment: ISA atmosphere, steady wind, Dryden turbulence, the local Earth frame.
+
+* **Atmosphere**: the International Standard Atmosphere troposphere (ISO 2533:1975 / ICAO Doc 7488),
+  T = T0 + ΔT − L·h, p = p0·((T0 − L·h)/T0)^(g0/(R·L)), ρ = p/(R·T), with an optional temperature offset
+  ΔT (an "ISA + ΔT" day keeps the standard pressure–height relation and changes the density).
+* **Steady wind**: speed and the direction it blows FROM (meteorological convention), horizontal.
+* **Turbulence**: the Dryden form of MIL-F-8785C §3.7 (also MIL-HDBK-1797 Appendix A), low-altitude
+  model (h < 1000 ft): σ_w = 0.1·W20, σ_u/σ_w = σ_v/σ_w = 1/(0.177 + 0.000823·h)^0.4, L_w = h,
+  L_u = L_v = h/(0.177 + 0.000823·h)^1.2 (h in feet; h clamped to [10, 1000] ft, the model's range).
+  W20 (wind speed at 20 ft) is 15 kt for light and 30 kt for moderate turbulence (MIL-F-8785C Fig. 10).
+  Spectra in spatial frequency Ω [rad/m]: Φ_u = σ_u²·(2L_u/π)/(1 + (L_u·Ω)²),
+  Φ_v = σ_v²·(L_v/π)·(1 + 3(L_v·Ω)²)/(1 + (L_v·Ω)²)² (Φ_w likewise with L_w, σ_w). The turbulence
+  axes at low altitude are aligned with the mean wind (u along it, v to its right, w down; north when
+  there is no steady wind); the spatial field is swept past the aircraft at its airspeed (Taylor's
+  frozen-turbulence hypothesis). Rotational gust components (p_g, q_g, r_g) are not modelled: for a
+  2 m span they are small next to the linear gusts' effect on α and β.
+* **Local Earth frame**: NED positions map to latitude/longitude with the WGS-84 meridian and prime
+  vertical radii of curvature at the home latitude (flat Earth: errors < 1 m within ~10 km of home).
+
+The Dryden filters are discretised exactly for any step Δ (see :class:`DrydenTurbulence`), so the
+variance and correlation of the gusts are right at every integration rate.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Final
+
+import numpy as np
+
+from vdm_aero._typing import F64Array
+
+__all__ = [
+    "G0_M_S2",
+    "TURBULENCE_LEVELS",
+    "Atmosphere",
+    "DrydenTurbulence",
+    "LocalFrame",
+    "SteadyWind",
+    "dryden_length_scales_m",
+    "dryden_sigmas_m_s",
+]
+
+# ISA sea-level constants (ISO 2533:1975)
+G0_M_S2: Final = 9.80665  # standard gravity, also used as the (constant) gravity of the dynamics
+R_AIR_J_KG_K: Final = 287.05287  # specific gas constant of dry air
+T0_K: Final = 288.15
+P0_PA: Final = 101325.0
+LAPSE_K_M: Final = 0.0065  # troposphere temperature lapse rate
+_ISA_EXPONENT: Final = G0_M_S2 / (R_AIR_J_KG_K * LAPSE_K_M)  # 5.25588
+TROPOPAUSE_M: Final = 11000.0
+
+# WGS-84 ellipsoid
+WGS84_A_M: Final = 6378137.0
+WGS84_E2: Final = 6.69437999014e-3
+
+FT_M: Final = 0.3048
+KT_M_S: Final = 0.514444
+TURBULENCE_LEVELS: Final = {"none": 0.0, "light": 15.0 * KT_M_S, "moderate": 30.0 * KT_M_S}
+"""Turbulence level → W20, the wind speed at 20 ft [m/s] (MIL-F-8785C Fig. 10: 15 kt light, 30 kt moderate)."""
+_DRYDEN_H_MIN_FT: Final = 10.0
+_DRYDEN_H_MAX_FT: Final = 1000.0
+
+
+@dataclass(frozen=True)
+class Atmosphere:
+    """ISA troposphere with a temperature offset ``isa_delta_t_k`` [K] (0 = standard day)."""
+
+    isa_delta_t_k: float
+
+    def at(self, alt_msl_m: float) -> tuple[float, float, float]:
+        """(static pressure [Pa], temperature [K], density [kg/m³]) at geopotential altitude ``alt_msl_m``."""
+        if not -500.0 <= alt_msl_m <= TROPOPAUSE_M:
+            raise ValueError(f"altitude {alt_msl_m:.1f} m is outside the ISA troposphere model [-500, 11000] m")
+        t_std = T0_K - LAPSE_K_M * alt_msl_m
+        p = P0_PA * (t_std / T0_K) ** _ISA_EXPONENT
+        t = t_std + self.isa_delta_t_k
+        return p, t, p / (R_AIR_J_KG_K * t)
+
+
+@dataclass(frozen=True)
+class SteadyWind:
+    """A horizontal steady wind of ``speed_m_s`` blowing FROM ``from_deg`` (0 = from north, 90 = from east)."""
+
+    speed_m_s: float
+    from_deg: float
+
+    @property
+    def ned_m_s(self) -> F64Array:
+        """The wind velocity (air motion over ground) in NED [m/s]."""
+        a = math.radians(self.from_deg)
+        return np.array([-self.speed_m_s * math.cos(a), -self.speed_m_s * math.sin(a), 0.0])
+
+    @property
+    def to_heading_rad(self) -> float:
+        """Direction the air moves towards [rad from north]; north when there is no wind."""
+        if self.speed_m_s <= 0.0:
+            return 0.0
+        return math.radians(self.from_deg) + math.pi
+
+
+def _dryden_height_ft(height_m: float) -> float:
+    return min(max(height_m / FT_M, _DRYDEN_H_MIN_FT), _DRYDEN_H_MAX_FT)
+
+
+def dryden_sigmas_m_s(level: str, height_m: float) -> tuple[float, float, float]:
+    """MIL-F-8785C low-altitude turbulence intensities (σ_u, σ_v, σ_w) [m/s] at ``height_m`` above ground."""
+    w20 = TURBULENCE_LEVELS[level]
+    h = _dryden_height_ft(height_m)
+    s_w = 0.1 * w20
+    s_uv = s_w / (0.177 + 0.000823 * h) ** 0.4
+    return s_uv, s_uv, s_w
+
+
+def dryden_length_scales_m(height_m: float) -> tuple[float, float, float]:
+    """MIL-F-8785C low-altitude Dryden scale lengths (L_u, L_v, L_w) [m] at ``height_m`` above ground."""
+    h = _dryden_height_ft(height_m)
+    l_uv = h / (0.177 + 0.000823 * h) ** 1.2
+    return l_uv * FT_M, l_uv * FT_M, h * FT_M
+
+
+class DrydenTurbulence:
+    """Dryden gusts (u_g, v_g, w_g) [m/s] in turbulence axes with a seeded generator.
+
+    Exact discretisation over a step Δ with r = V·Δ/L (a component's spatial step in scale lengths):
+
+    * u: an Ornstein–Uhlenbeck process x ← e^{−r}·x + √(1 − e^{−2r})·n, gust = σ_u·x (correlation e^{−ξ/L}).
+    * v, w: the shaping filter (1 + √3·T·s)/(1 + T·s)², T = L/V, realised in the state coordinates whose
+      stationary covariance is the identity: Φ = e^{−r}·[[1 + r, r], [−r, 1 − r]], process noise
+      covariance I − ΦΦᵀ (exact for a stationary linear system), gust = σ·(x₁ + √3·x₂)/2. Its spectrum
+      is the Dryden Φ_v shape and its variance σ² at every Δ, V and L.
+
+    σ and L follow the height and the airspeed as they change (the normalised states keep unit variance,
+    so a change of scale never produces a variance transient). Normal deviates are drawn in blocks.
+    """
+
+    _BLOCK: Final = 4096
+
+    def __init__(self, level: str, rng: np.random.Generator) -> None:
+        if level not in TURBULENCE_LEVELS:
+            raise ValueError(f"unknown turbulence level {level!r} (known: {', '.join(TURBULENCE_LEVELS)})")
+        self.level = level
+        self.rng = rng
+        # normalised states u, v1, v2, w1, w2: start from the stationary distribution, not from calm air
+        self._x = [float(v) for v in rng.standard_normal(5)]
+        self._noise: list[float] = []
+        self._i = 0
+
+    def _draw(self) -> list[float]:
+        if self._i + 5 > len(self._noise):
+            self._noise = self.rng.standard_normal(5 * self._BLOCK).tolist()
+            self._i = 0
+        i = self._i
+        self._i = i + 5
+        return self._noise[i : i + 5]
+
+    @staticmethod
+    def _second_order(x1: float, x2: float, r: float, n1: float, n2: float) -> tuple[float, float]:
+        e = math.exp(-r)
+        p11, p12, p21, p22 = e * (1.0 + r), e * r, -e * r, e * (1.0 - r)
+        # Q = I − ΦΦᵀ, Cholesky factor [[a, 0], [b, c]]
+        q11 = 1.0 - (p11 * p11 + p12 * p12)
+        q12 = -(p11 * p21 + p12 * p22)
+        q22 = 1.0 - (p21 * p21 + p22 * p22)
+        a = math.sqrt(max(q11, 0.0))
+        b = q12 / a if a > 1e-300 else 0.0
+        c = math.sqrt(max(q22 - b * b, 0.0))
+        return p11 * x1 + p12 * x2 + a * n1, p21 * x1 + p22 * x2 + b * n1 + c * n2
+
+    def step(self, dt_s: float, airspeed_m_s: float, height_m: float) -> tuple[float, float, float]:
+        """Advance by ``dt_s`` at the given airspeed [m/s] and height above ground [m]; the new gusts
+        (u_g, v_g, w_g) [m/s] in turbulence axes."""
+        if self.level == "none":
+            return 0.0, 0.0, 0.0
+        s_u, s_v, s_w = dryden_sigmas_m_s(self.level, height_m)
+        l_u, l_v, l_w = dryden_length_scales_m(height_m)
+        dist = max(airspeed_m_s, 0.0) * dt_s
+        n = self._draw()
+        x = self._x
+        e = math.exp(-dist / l_u)
+        x[0] = e * x[0] + math.sqrt(1.0 - e * e) * n[0]
+        x[1], x[2] = self._second_order(x[1], x[2], dist / l_v, n[1], n[2])
+        x[3], x[4] = self._second_order(x[3], x[4], dist / l_w, n[3], n[4])
+        half_root3 = 0.5 * math.sqrt(3.0)
+        return s_u * x[0], s_v * (0.5 * x[1] + half_root3 * x[2]), s_w * (0.5 * x[3] + half_root3 * x[4])
+
+
+@dataclass(frozen=True)
+class LocalFrame:
+    """The NED frame at the home position (geodetic latitude/longitude [deg], altitude above mean sea level [m])."""
+
+    lat_deg: float
+    lon_deg: float
+    alt_m: float
+
+    @property
+    def radii_m(self) -> tuple[float, float]:
+        """(meridian radius M, prime-vertical radius N) of WGS-84 at the home latitude [m]."""
+        s = math.sin(math.radians(self.lat_deg))
+        w = math.sqrt(1.0 - WGS84_E2 * s * s)
+        return WGS84_A_M * (1.0 - WGS84_E2) / w**3, WGS84_A_M / w
+
+    def to_geodetic(self, north_m: float, east_m: float, down_m: float) -> tuple[float, float, float]:
+        """(latitude [deg], longitude [deg], altitude MSL [m]) of a NED position."""
+        m, n = self.radii_m
+        lat = self.lat_deg + math.degrees(north_m / (m + self.alt_m))
+        lon = self.lon_deg + math.degrees(east_m / ((n + self.alt_m) * math.cos(math.radians(self.lat_deg))))
+        return lat, lon, self.alt_m - down_m

@@ -1,0 +1,504 @@
+"""The flight simulator as a :class:`sim.sitl.frames.World`: vehicle, trim, and the stepping loop.
+
+``FlightWorld(load_scenario("survey-wind8"))`` builds the vehicle (airframe spec → pressure model, ~2 s for
+the NeuralFoil separation calibration; pass a prebuilt :class:`Vehicle` to share it between worlds),
+trims it at the start state, and then every :meth:`FlightWorld.step` advances one RK4 step at the physics
+rate and returns a :class:`~sim.sitl.frames.WorldTick` with the truth and whatever sensors sampled.
+
+Order within a step (the inputs of a step are held over it: zero-order hold at the physics rate):
+
+1. RK4 from t to t + Δ with the actuator positions, wind, α̇ and density of the step;
+2. actuators advance towards their commands, turbulence advances, density follows the altitude;
+3. at the aerodynamic rate the Taylor model is re-expanded at the new state, and earlier whenever the
+   state has moved beyond :class:`~sim.flight.aero.ReexpansionBounds` from the expansion point;
+4. the derivative at the new state (reused as the next step's first RK4 stage) gives the specific force,
+   airspeed, α and β of the truth;
+5. at the control rate the autopilot reads the truth and issues commands (and the servo outputs);
+6. sensors sample at their rates; GNSS fixes are delivered after their latency.
+
+α̇ (the aerodynamics' angle-of-attack rate: tail downwash lag, apparent mass) is the finite difference of α
+low-passed with a 40 ms time constant, about the convection time over the tail arm at cruise (the
+downwash reaching the tail is itself such an average), which also keeps the white-noise part of the
+Dryden vertical gust from producing unbounded α̇.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Final
+
+import numpy as np
+import scipy.optimize
+import yaml
+
+from sim.airframe.geometry import AirframeGeometry
+from sim.airframe.pressure import AirframePressureModel
+from sim.airframe.simulate import AirframeSimulator
+from sim.airframe.spec import AirframeSpec, parse_airframe_spec
+from sim.airframe.vlm import FlightStates
+from sim.flight.actuators import Actuators
+from sim.flight.aero import LinearizedAero, PortLayout, StripAero, resolve_ports
+from sim.flight.environment import G0_M_S2, DrydenTurbulence, LocalFrame
+from sim.flight.guidance import Autopilot, NavState, TrimPoint
+from sim.flight.rigid_body import (
+    AircraftDynamics,
+    Aux,
+    MassProperties,
+    StepInputs,
+    euler_from_quat,
+    quat_from_euler,
+    quat_to_dcm,
+)
+from sim.flight.scenario import VEHICLES, Scenario, VehiclePreset, port_points_array
+from sim.flight.sensors import Barometer, Gnss, Imu, Magnetometer, PitotAirspeed, PressurePorts, ServoOutputs
+from sim.presets import preset_text
+from sim.sitl.frames import VehicleTruth, WorldTick
+from vdm_aero._typing import F64Array
+from vdm_aero.dataset import Reference
+from vdm_aero.errors import SpecError, VdmAeroError
+
+__all__ = [
+    "ALPHA_DOT_TAU_S",
+    "Controller",
+    "FlightEnvelopeError",
+    "FlightWorld",
+    "Trim",
+    "Vehicle",
+    "trim_flight",
+]
+
+ALPHA_DOT_TAU_S: Final = 0.04
+_MAX_ALPHA_RAD: Final = math.radians(25.0)
+_MAX_BETA_RAD: Final = math.radians(20.0)
+_MIN_AIRSPEED_M_S: Final = 6.0
+Controller = Callable[[float, NavState], tuple[float, float, float, float]]
+"""A controller: (world time [s], truth) → commands (aileron, elevator, throttle, rudder)."""
+
+
+class FlightEnvelopeError(VdmAeroError):
+    """The aircraft left what the simulator can represent: ground impact, or α, β or airspeed outside the
+    aerodynamic model's envelope (a crash or a loss of control)."""
+
+
+# ---------------------------------------------------------------------------------------- vehicle
+@dataclass(frozen=True, eq=False)
+class Vehicle:
+    """A built vehicle: the preset, its airframe spec, pressure model, geometry, reference and mass."""
+
+    preset: VehiclePreset
+    airframe: AirframeSpec
+    model: AirframePressureModel
+    geometry: AirframeGeometry
+    reference: Reference
+    mass: MassProperties
+
+    @classmethod
+    def build(cls, preset: VehiclePreset | str) -> Vehicle:
+        """Build from a preset (or its name): the airframe spec's effects are completed exactly as for its
+        data set (NeuralFoil separation calibration), so the flight's truth is the data set's truth."""
+        if isinstance(preset, str):
+            if preset not in VEHICLES:
+                raise SpecError(f"{preset}: unknown vehicle (known: {', '.join(VEHICLES)})")
+            preset = VEHICLES[preset]
+        spec = parse_airframe_spec(
+            yaml.safe_load(preset_text(preset.airframe_spec)), origin=f"preset:{preset.airframe_spec}"
+        )
+        sim = AirframeSimulator(spec)
+        return cls(
+            preset=preset,
+            airframe=spec,
+            model=sim.model,
+            geometry=sim.geometry,
+            reference=sim.reference,
+            mass=MassProperties.from_geometry(sim.geometry),
+        )
+
+    def port_layout(self, names: tuple[str, ...], points_b: F64Array, tolerance_m: float, where: str) -> PortLayout:
+        """Ports snapped to this vehicle's surface points (see :func:`sim.flight.aero.resolve_ports`)."""
+        try:
+            return resolve_ports(self.geometry, names, points_b, tolerance_m, where)
+        except ValueError as e:
+            raise SpecError(str(e)) from None
+
+
+# ------------------------------------------------------------------------------------------- trim
+@dataclass(frozen=True)
+class Trim:
+    """A steady wings-level straight flight point (air-relative): flight-path angle γ [rad] (0 = level),
+    angles [rad], deflections [rad], throttle, the thrust and its slope dT/dδ_t [N], and the largest
+    residual acceleration [m/s² or rad/s²] of the solution."""
+
+    airspeed_m_s: float
+    rho_kg_m3: float
+    gamma_rad: float
+    alpha_rad: float
+    beta_rad: float
+    aileron_rad: float
+    elevator_rad: float
+    rudder_rad: float
+    throttle: float
+    thrust_n: float
+    thrust_per_throttle_n: float
+    residual: float
+
+    @property
+    def pitch_rad(self) -> float:
+        return self.alpha_rad + self.gamma_rad
+
+    def point(self) -> TrimPoint:
+        return TrimPoint(
+            airspeed_m_s=self.airspeed_m_s,
+            alpha_rad=self.alpha_rad,
+            beta_rad=self.beta_rad,
+            aileron_rad=self.aileron_rad,
+            elevator_rad=self.elevator_rad,
+            rudder_rad=self.rudder_rad,
+            throttle=self.throttle,
+            thrust_per_throttle_n=self.thrust_per_throttle_n,
+        )
+
+
+def trim_flight(
+    vehicle: Vehicle, aero: StripAero, airspeed_m_s: float, rho_kg_m3: float, *, throttle: float | None = None
+) -> Trim:
+    """Trim wings-level straight flight with the exact aerodynamics.
+
+    ``throttle=None``: level flight, unknowns α, β, δa, δe, δr, δ_t. A given throttle (e.g. 0 for a
+    glide): the flight-path angle γ replaces δ_t as unknown. The six equations are the body-axis force
+    and moment balances (as accelerations); φ = 0 and θ = α + γ.
+    """
+    m, g = vehicle.mass.mass_kg, G0_M_S2
+    ref = vehicle.reference
+    prop = vehicle.preset.propulsion
+    inertia = np.diag(vehicle.mass.inertia_kg_m2)
+    qs = 0.5 * rho_kg_m3 * airspeed_m_s**2 * ref.area_m2
+    lref = np.array([ref.span_m, ref.chord_m, ref.span_m])
+    _, yp, zp = prop.thrust_point_b
+
+    def unpack(z: np.ndarray) -> tuple[float, float, float, float, float, float, float]:
+        a, b, da, de, dr, last = (float(v) for v in z)
+        return (a, b, da, de, dr, last, 0.0) if throttle is None else (a, b, da, de, dr, throttle, last)
+
+    def forces(z: np.ndarray) -> tuple[np.ndarray, float]:
+        a, b, da, de, dr, thr, gamma = unpack(z)
+        st = FlightStates.make(airspeed_m_s, alpha_rad=a, beta_rad=b, aileron_rad=da, elevator_rad=de, rudder_rad=dr)
+        c = aero.evaluate(st)[0][0]
+        t, q = prop.thrust_torque(thr, airspeed_m_s * math.cos(a) * math.cos(b), rho_kg_m3)
+        f = qs * c[0:3] + np.array([t, 0.0, 0.0])
+        mom = qs * c[3:6] * lref + np.array([-prop.spin * q, zp * t, -yp * t])
+        theta = a + gamma
+        res = np.concatenate([f / m + g * np.array([-math.sin(theta), 0.0, math.cos(theta)]), mom / inertia])
+        return res, t
+
+    z0 = np.array([0.03, 0.0, 0.0, -0.02, 0.0, 0.5 if throttle is None else -0.05])
+    lim = math.radians(20.0)
+    lo = [-0.2, -0.3, -lim, -lim, -lim, 0.0 if throttle is None else -0.5]
+    hi = [0.4, 0.3, lim, lim, lim, 1.0 if throttle is None else 0.5]
+    sol = scipy.optimize.least_squares(lambda z: forces(z)[0], z0, bounds=(lo, hi), xtol=1e-14, ftol=1e-14, gtol=1e-14)
+    res, thrust = forces(sol.x)
+    a, b, da, de, dr, thr, gamma = unpack(sol.x)
+    residual = float(np.max(np.abs(res)))
+    if residual > 1e-6:
+        raise ValueError(f"no trim at {airspeed_m_s} m/s (residual {residual:.2e}): outside the vehicle's envelope")
+    dthr = 1e-4
+    u_ax = airspeed_m_s * math.cos(a) * math.cos(b)
+    slope = (
+        prop.thrust_torque(min(thr + dthr, 1.0), u_ax, rho_kg_m3)[0] - prop.thrust_torque(thr, u_ax, rho_kg_m3)[0]
+    ) / dthr
+    return Trim(
+        airspeed_m_s=airspeed_m_s,
+        rho_kg_m3=rho_kg_m3,
+        gamma_rad=gamma,
+        alpha_rad=a,
+        beta_rad=b,
+        aileron_rad=da,
+        elevator_rad=de,
+        rudder_rad=dr,
+        throttle=thr,
+        thrust_n=thrust,
+        thrust_per_throttle_n=max(slope, 1e-3),
+        residual=residual,
+    )
+
+
+# ------------------------------------------------------------------------------------------ world
+class FlightWorld:
+    """The 6-DOF flight of a scenario (implements :class:`sim.sitl.frames.World`).
+
+    ``vehicle``: a prebuilt :class:`Vehicle` of the scenario's preset (default: built here).
+    ``controller``: replaces the autopilot (tests fly open loop or hold a bank), called at the control rate.
+    ``trim_throttle``: trim the start state at this throttle (a glide when 0) instead of level flight.
+    """
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        vehicle: Vehicle | None = None,
+        *,
+        controller: Controller | None = None,
+        trim_throttle: float | None = None,
+    ) -> None:
+        self.scenario = sc = scenario
+        if vehicle is None:
+            vehicle = Vehicle.build(sc.vehicle)
+        elif vehicle.preset.name != sc.vehicle.name:
+            raise ValueError(f"vehicle {vehicle.preset.name!r} does not match the scenario's {sc.vehicle.name!r}")
+        self.vehicle = vehicle
+        sim = sc.simulation
+        self.dt_s = sim.dt_s
+        self.home_lat_deg, self.home_lon_deg, self.home_alt_m = sc.home_lat_deg, sc.home_lon_deg, sc.home_alt_m
+        self.frame = LocalFrame(sc.home_lat_deg, sc.home_lon_deg, sc.home_alt_m)
+        self.ports = vehicle.port_layout(
+            sc.ports.names, port_points_array(sc.ports), sc.ports.tolerance_m, f"{sc.origin}: sensors.ports"
+        )
+        self.strip_aero = StripAero(vehicle.model, self.ports)
+        self.aero = LinearizedAero(self.strip_aero)
+        self.dynamics = AircraftDynamics(vehicle.mass, vehicle.reference, sc.vehicle.propulsion, self.aero)
+
+        # independent, reproducible streams: one generator per stochastic component
+        seeds = np.random.SeedSequence(sc.seed).spawn(7)
+        rngs = [np.random.default_rng(s) for s in seeds]
+        self.turbulence = DrydenTurbulence(sc.turbulence, rngs[0])
+        self.imu = Imu(sc.imu.grade, sim.physics_rate_hz, sc.imu.vibration_multiplier, rngs[1])
+        self.gnss = Gnss(sc.gnss.grade, self.frame, sc.gnss.outages, sc.gnss.glitches, rngs[2])
+        self.baro = Barometer(sc.baro, rngs[3])
+        self.mag = Magnetometer(
+            sc.mag.grade, np.asarray(sc.magnetic_field.ned_t), np.asarray(sc.mag.hard_iron_b_t), rngs[4]
+        )
+        self.pitot = PitotAirspeed(sc.airspeed, rngs[5]) if sc.airspeed is not None else None
+        self.port_sensors = PressurePorts(sc.ports.grade, self.ports.names, sc.ports.rate_hz, sc.ports.lag_s, rngs[6])
+        self.servos = ServoOutputs(sim.control_rate_hz)
+
+        self._div_aero = sim.steps_per(sim.aero_rate_hz)
+        self._div_ctrl = sim.steps_per(sim.control_rate_hz)
+        self._div_gnss = sim.steps_per(sc.gnss.grade.rate_hz)
+        self._div_baro = sim.steps_per(sc.baro.rate_hz)
+        self._div_mag = sim.steps_per(sc.mag.grade.rate_hz)
+        self._div_pitot = sim.steps_per(sc.airspeed.rate_hz) if sc.airspeed is not None else 0
+        self._div_ports = sim.steps_per(sc.ports.rate_hz)
+
+        # --- initial state: trimmed straight flight at the start
+        st = sc.start
+        alt0 = sc.home_alt_m + st.height_m
+        rho0 = sc.atmosphere.at(alt0)[2]
+        self.trim = trim_flight(vehicle, self.strip_aero, st.airspeed_m_s, rho0, throttle=trim_throttle)
+        tr = self.trim
+        q = quat_from_euler(0.0, tr.pitch_rad, math.radians(st.heading_deg))
+        v_air_b = (
+            st.airspeed_m_s * math.cos(tr.alpha_rad) * math.cos(tr.beta_rad),
+            st.airspeed_m_s * math.sin(tr.beta_rad),
+            st.airspeed_m_s * math.sin(tr.alpha_rad) * math.cos(tr.beta_rad),
+        )
+        v_air_ned = quat_to_dcm(q) @ np.asarray(v_air_b)
+        self._wind_steady = sc.wind.ned_m_s
+        self._turb_heading = sc.wind.to_heading_rad
+        gust = self.turbulence.step(0.0, st.airspeed_m_s, st.height_m)
+        wind0 = self._wind_steady + self._gust_ned(gust)
+        v_ned = v_air_ned + wind0
+        self._y: tuple[float, ...] = (
+            st.north_m,
+            st.east_m,
+            -st.height_m,
+            *(float(v) for v in v_ned),
+            *q,
+            0.0,
+            0.0,
+            0.0,
+        )
+        self.actuators = Actuators(sc.vehicle.actuators, (tr.aileron_rad, tr.elevator_rad, tr.throttle, tr.rudder_rad))
+        if controller is None:
+            ap = Autopilot(sc.route, sc.vehicle.gains, tr.point(), vehicle.mass.mass_kg, 1.0 / sim.control_rate_hz)
+            ap.start_leg_from(st.north_m, st.east_m)
+            self.autopilot: Autopilot | None = ap
+            self._controller: Controller = lambda _t, s: ap.update(s)
+        else:
+            self.autopilot = None
+            self._controller = controller
+        self._alpha_dot = 0.0
+        self._rho = rho0
+        self._temp_c = sc.atmosphere.at(alt0)[1] - 273.15
+        self._p_static = sc.atmosphere.at(alt0)[0]
+        self._wind = (float(wind0[0]), float(wind0[1]), float(wind0[2]))
+        self._u = self._inputs()
+        self.aero.update(self._air_state(self._y))
+        self._k1, self._aux = self.dynamics.derivative(self._y, self._u)
+        self._alpha_prev = self._aux.alpha
+        self._n = 0
+        self.t_s = 0.0
+        self._pwm_cmd = self.actuators.pwm_of(self.actuators.command)
+
+    # ----------------------------------------------------------------------------------- helpers
+    @property
+    def duration_s(self) -> float:
+        return self.scenario.duration_s
+
+    @property
+    def n_steps(self) -> int:
+        """World steps in the scenario's duration (stepping further is allowed: the route repeats)."""
+        return self.scenario.n_steps
+
+    @property
+    def state(self) -> tuple[float, ...]:
+        """The rigid-body state (13,): NED position, NED velocity, quaternion, body rates."""
+        return self._y
+
+    @property
+    def aux(self) -> Aux:
+        """Specific force, airspeed, α, β and thrust at the current state."""
+        return self._aux
+
+    def _gust_ned(self, gust: tuple[float, float, float]) -> np.ndarray:
+        ug, vg, wg = gust
+        c, s = math.cos(self._turb_heading), math.sin(self._turb_heading)
+        return np.array([c * ug - s * vg, s * ug + c * vg, wg])
+
+    def _inputs(self) -> StepInputs:
+        a, e, t, r = self.actuators.position
+        return StepInputs(*self._wind, a, e, t, r, self._alpha_dot, self._rho)
+
+    def _air_state(self, y: tuple[float, ...]) -> tuple[float, ...]:
+        """The aerodynamic state (V, α, β, p, q, r, α̇, δa, δe, δr) at ``y`` under the current inputs."""
+        _, _, _, vn, ve, vd, q0, q1, q2, q3, p, q, r = y
+        u = self._u
+        an, ae, ad = vn - u.wind_n, ve - u.wind_e, vd - u.wind_d
+        ub = (q0 * q0 + q1 * q1 - q2 * q2 - q3 * q3) * an + 2 * (q1 * q2 + q0 * q3) * ae + 2 * (q1 * q3 - q0 * q2) * ad
+        vb = 2 * (q1 * q2 - q0 * q3) * an + (q0 * q0 - q1 * q1 + q2 * q2 - q3 * q3) * ae + 2 * (q2 * q3 + q0 * q1) * ad
+        wb = 2 * (q1 * q3 + q0 * q2) * an + 2 * (q2 * q3 - q0 * q1) * ae + (q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3) * ad
+        v = math.sqrt(ub * ub + vb * vb + wb * wb)
+        return (v, math.atan2(wb, ub), math.asin(vb / v), p, q, r, u.alpha_dot, u.aileron, u.elevator, u.rudder)
+
+    def nav_state(self) -> NavState:
+        """The truth as the autopilot reads it."""
+        n, e, d, vn, ve, vd, q0, q1, q2, q3, p, q, r = self._y
+        roll, pitch, yaw = euler_from_quat(q0, q1, q2, q3)
+        k1 = self._k1
+        return NavState(
+            north_m=n,
+            east_m=e,
+            down_m=d,
+            v_n=vn,
+            v_e=ve,
+            v_d=vd,
+            a_n=k1[3],
+            a_e=k1[4],
+            a_d=k1[5],
+            roll=roll,
+            pitch=pitch,
+            yaw=yaw,
+            p=p,
+            q=q,
+            r=r,
+            airspeed_m_s=self._aux.airspeed,
+            beta_rad=self._aux.beta,
+        )
+
+    def _check_envelope(self) -> None:
+        a = self._aux
+        height = -self._y[2]
+        msg = None
+        if height < 0.0:
+            msg = "hit the ground"
+        elif a.airspeed < _MIN_AIRSPEED_M_S:
+            msg = f"airspeed {a.airspeed:.1f} m/s below {_MIN_AIRSPEED_M_S} m/s"
+        elif abs(a.alpha) > _MAX_ALPHA_RAD:
+            msg = f"alpha {math.degrees(a.alpha):.1f} deg outside ±{math.degrees(_MAX_ALPHA_RAD):.0f} deg"
+        elif abs(a.beta) > _MAX_BETA_RAD:
+            msg = f"beta {math.degrees(a.beta):.1f} deg outside ±{math.degrees(_MAX_BETA_RAD):.0f} deg"
+        if msg is not None:
+            raise FlightEnvelopeError(
+                f"{self.scenario.name}: t = {self.t_s:.3f} s: the aircraft {msg} (height {height:.1f} m)"
+            )
+
+    # ------------------------------------------------------------------------------------- step
+    def step(self) -> WorldTick:
+        """Advance one physics step (see the module docstring) and return what happened."""
+        dt = self.dt_s
+        self._y = self.dynamics.rk4(self._y, self._u, dt, self._k1)
+        self._n += 1
+        n = self._n
+        self.t_s = t = n * dt
+        y = self._y
+        height = -y[2]
+
+        # inputs of the next step
+        self.actuators.step(dt)
+        gust = self.turbulence.step(dt, self._aux.airspeed, max(height, 0.0))
+        ug, vg, wg = gust
+        c, s = math.cos(self._turb_heading), math.sin(self._turb_heading)
+        ws = self._wind_steady
+        self._wind = (float(ws[0]) + c * ug - s * vg, float(ws[1]) + s * ug + c * vg, float(ws[2]) + wg)
+        alt = self.home_alt_m + height
+        self._p_static, temp_k, self._rho = self.scenario.atmosphere.at(min(max(alt, -500.0), 11000.0))
+        self._temp_c = temp_k - 273.15
+        self._u = self._inputs()
+        x_air = self._air_state(y)
+        if n % self._div_aero == 0 or self.aero.out_of_bounds(x_air):
+            self.aero.update(x_air)
+        self._k1, aux = self.dynamics.derivative(y, self._u)
+        self._aux = aux
+        # α̇: finite difference of α, low-passed (see the module docstring)
+        raw = (aux.alpha - self._alpha_prev) / dt
+        self._alpha_prev = aux.alpha
+        self._alpha_dot += (raw - self._alpha_dot) * (dt / (ALPHA_DOT_TAU_S + dt))
+        self._check_envelope()
+
+        servos = None
+        if n % self._div_ctrl == 0:
+            cmd = self._controller(t, self.nav_state())
+            self.actuators.set_command(*cmd)
+            self._pwm_cmd = self.actuators.pwm_of(self.actuators.command)
+            servos = self.servos.sample(t, self._pwm_cmd)
+
+        # --- sensors
+        _, _, _, vn, ve, vd, q0, q1, q2, q3, p, q, r = y
+        imu = self.imu.sample(t, (aux.f_x, aux.f_y, aux.f_z), (p, q, r), self._u.throttle, self._temp_c)
+        if n % self._div_gnss == 0:
+            self.gnss.measure(t, y[0:3], y[3:6])
+        gnss = self.gnss.deliver(t)
+        baro = self.baro.sample(t, self._p_static, self._temp_c) if n % self._div_baro == 0 else None
+        mag = None
+        if n % self._div_mag == 0:
+            mag = self.mag.sample(t, quat_to_dcm((q0, q1, q2, q3)))
+        qbar = 0.5 * self._rho * aux.airspeed * aux.airspeed
+        airspeed = None
+        if self.pitot is not None and n % self._div_pitot == 0:
+            airspeed = self.pitot.sample(t, qbar, self._temp_c)
+        ports = None
+        if n % self._div_ports == 0:
+            cp = self.aero.ports_cp(x_air)
+            ports = self.port_sensors.sample(t, cp * qbar)
+
+        lat, lon, alt_m = self.frame.to_geodetic(y[0], y[1], y[2])
+        truth = VehicleTruth(
+            t_s=t,
+            lat_deg=lat,
+            lon_deg=lon,
+            alt_m=alt_m,
+            pos_ned_m=np.array(y[0:3]),
+            v_ned_m_s=np.array((vn, ve, vd)),
+            q_nb=np.array((q0, q1, q2, q3)),
+            omega_b_rad_s=np.array((p, q, r)),
+            specific_force_b_m_s2=np.array((aux.f_x, aux.f_y, aux.f_z)),
+            airspeed_m_s=aux.airspeed,
+            alpha_rad=aux.alpha,
+            beta_rad=aux.beta,
+            wind_ned_m_s=np.array(self._wind),
+            throttle=self._u.throttle,
+        )
+        return WorldTick(
+            truth=truth,
+            imu=imu,
+            gnss=gnss,
+            baro=baro,
+            mag=mag,
+            airspeed=airspeed,
+            ports=ports,
+            servos=servos,
+            gnss_outage=self.gnss.in_outage(t),
+        )
+
+    def run(self, n_steps: int | None = None) -> list[WorldTick]:
+        """Step ``n_steps`` times (default: the scenario's duration) and return the ticks."""
+        return [self.step() for _ in range(self.n_steps if n_steps is None else n_steps)]

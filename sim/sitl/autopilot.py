@@ -1,0 +1,525 @@
+"""The SITL mock autopilot: an ArduPlane-like MAVLink 2 peer driven by a :class:`~sim.sitl.frames.World`.
+
+From a companion's side it behaves like ArduPlane in AUTO (see docs/sitl.md): HEARTBEAT at 1 Hz as a
+fixed-wing ArduPilot, telemetry at SRx_-like stream rates, MAV_CMD_SET_MESSAGE_INTERVAL /
+MAV_CMD_GET_MESSAGE_INTERVAL / MAV_CMD_REQUEST_MESSAGE / REQUEST_DATA_STREAM, TIMESYNC replies, the
+pressure ports as NAMED_VALUE_FLOAT (and optionally DEBUG_FLOAT_ARRAY) only once the link has heard
+from a remote component, GPS_INPUT and ODOMETRY recorded, optional signing. It never imports
+``firmware_bridge``: it is the peer the bridge is tested against.
+
+Time: the autopilot's clock is the world time (it boots at world time 0). ``speed`` paces world steps
+against the wall clock (1 = real time, 10 = ten times faster, 0 or inf = as fast as possible); all
+rates are in autopilot time.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import TracebackType
+from typing import TypedDict
+
+import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from sim.sitl.frames import World, WorldTick
+from sim.sitl.link import Link, MavlinkEndpoint, MavlinkMessage, SigningConfig, open_link
+from sim.sitl.streams import (
+    DEBUG_FLOAT_ARRAY_LEN,
+    NavEstimate,
+    SensorState,
+    Stream,
+    StreamScheduler,
+    TelemetryEncoder,
+    default_rates,
+    message_name,
+    to_time_usec,
+)
+from sim.sitl.tlog import GpsInputRecord, OdometryRecord, TlogWriter, TruthRecorder
+from vdm_aero._typing import F64Array
+from vdm_aero.errors import UserInputError
+
+WGS84_A_M = 6378137.0
+WGS84_E2 = 6.69437999014e-3
+PORT_NAME_MAX_CHARS = 10
+PORTS_ARRAY_NAME = "PORTS"
+# messages that do not make a link "active" (ArduPilot: radio modems' own reports)
+_PASSIVE_MESSAGES = frozenset({"RADIO", "RADIO_STATUS"})
+
+
+@dataclass(frozen=True)
+class DeadReckoningDrift:
+    """Error growth of the autopilot's own position estimate while GNSS is out (seeded, reproducible).
+
+    At the start of each outage a velocity error is drawn (1σ per axis), then random-walks; the position
+    error integrates it. When the fix returns, the error decays with ``recovery_tau_s`` (the EKF
+    converging back onto GNSS).
+    """
+
+    horizontal_velocity_sigma_m_s: float = 0.3
+    vertical_velocity_sigma_m_s: float = 0.05
+    velocity_random_walk_m_s_per_sqrt_s: float = 0.02
+    recovery_tau_s: float = 2.0
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class AutopilotOptions:
+    """Identity and bookkeeping of the mock (the protocol-level options are :class:`MockAutopilot` arguments)."""
+
+    system_id: int = 1
+    component_id: int = 1
+    debug_array_id: int = 0  # DEBUG_FLOAT_ARRAY.array_id of the ports
+    unix_time_at_boot_s: float | None = None  # SYSTEM_TIME/tlog epoch; None: the wall clock when run() starts
+    drift: DeadReckoningDrift = field(default_factory=DeadReckoningDrift)
+    truth_every_n_steps: int = 1  # decimation of the truth record
+
+
+class RunSummary(TypedDict):
+    world_time_s: float
+    wall_time_s: float
+    steps: int
+    max_lag_s: float  # how far the loop fell behind the wall-clock schedule (real-time modes)
+    sent: dict[str, int]
+    received: dict[str, int]
+    gps_input: int
+    odometry: int
+    rejected_frames: int  # failed signature / unsigned while signing is required
+    bad_frames: int  # CRC or framing errors
+    link_active: bool
+    link: str
+
+
+class _DeadReckoning:
+    def __init__(self, cfg: DeadReckoningDrift) -> None:
+        self._cfg = cfg
+        self._rng = np.random.default_rng(cfg.seed)
+        self.error_ned_m = np.zeros(3)
+        self.error_rate_ned_m_s = np.zeros(3)
+        self._v_err = np.zeros(3)
+        self._in_outage = False
+
+    def update(self, dt_s: float, outage: bool) -> None:
+        cfg = self._cfg
+        if outage:
+            if not self._in_outage:
+                sig = np.array([cfg.horizontal_velocity_sigma_m_s] * 2 + [cfg.vertical_velocity_sigma_m_s])
+                self._v_err = sig * self._rng.standard_normal(3)
+            self._v_err = self._v_err + cfg.velocity_random_walk_m_s_per_sqrt_s * math.sqrt(
+                dt_s
+            ) * self._rng.standard_normal(3)
+            self.error_ned_m = self.error_ned_m + self._v_err * dt_s
+            self.error_rate_ned_m_s = self._v_err
+        else:
+            decayed = self.error_ned_m * math.exp(-dt_s / cfg.recovery_tau_s)
+            self.error_rate_ned_m_s = (decayed - self.error_ned_m) / dt_s
+            self.error_ned_m = decayed
+        self._in_outage = outage
+
+
+def _offset_lat_lon(lat_deg: float, lon_deg: float, alt_m: float, d_ned_m: F64Array) -> tuple[float, float]:
+    s2 = math.sin(math.radians(lat_deg)) ** 2
+    w = math.sqrt(1.0 - WGS84_E2 * s2)
+    r_n = WGS84_A_M * (1.0 - WGS84_E2) / w**3 + alt_m
+    r_e = (WGS84_A_M / w + alt_m) * math.cos(math.radians(lat_deg))
+    return lat_deg + math.degrees(float(d_ned_m[0]) / r_n), lon_deg + math.degrees(float(d_ned_m[1]) / r_e)
+
+
+class MockAutopilot:
+    """An ArduPlane-like MAVLink autopilot fed by ``world``, on the transport ``url`` (or a ready :class:`Link`).
+
+    The link is opened here (so a test can read a bound port or a pty path before ``run``) and released
+    by ``close()`` / the context manager. ``run`` is blocking and may be called once; ``stop()`` from
+    another thread ends it at the next world step.
+    """
+
+    def __init__(
+        self,
+        world: World,
+        url: str | Link,
+        *,
+        speed: float = 1.0,
+        stream_rates: Mapping[str, float] | None = None,
+        signing_key: bytes | None = None,
+        require_signing: bool = False,
+        ports_as_debug_array: bool = False,
+        tlog_path: Path | None = None,
+        truth_path: Path | None = None,
+        options: AutopilotOptions | None = None,
+    ) -> None:
+        if math.isnan(speed) or speed < 0.0:
+            raise UserInputError(f"speed = {speed}: must be ≥ 0 (0 or inf: as fast as possible)")
+        if require_signing and signing_key is None:
+            raise UserInputError("require_signing needs a signing key")
+        self._options = options or AutopilotOptions()
+        self._world = world
+        self._speed = speed
+        self._realtime = 0.0 < speed < math.inf
+        self._ports_as_debug_array = ports_as_debug_array
+        self._tlog_path = tlog_path
+        self._truth_path = truth_path
+        self._scheduler = StreamScheduler(default_rates(stream_rates))
+        signing = SigningConfig(signing_key, require=require_signing) if signing_key is not None else None
+        self._owns_link = isinstance(url, str)
+        self.link: Link = open_link(url) if isinstance(url, str) else url
+        self._endpoint = MavlinkEndpoint(
+            self.link,
+            system_id=self._options.system_id,
+            component_id=self._options.component_id,
+            signing=signing,
+            on_frame=self._log_frame,
+        )
+        self._encoder = TelemetryEncoder(self._endpoint.mav)
+        home = (world.home_lat_deg, world.home_lon_deg, world.home_alt_m)
+        self._state = SensorState(home)
+        self._drift = _DeadReckoning(self._options.drift)
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+        self._gps_inputs: list[GpsInputRecord] = []
+        self._odometry: list[OdometryRecord] = []
+        self._sent: Counter[str] = Counter()
+        self._received: Counter[str] = Counter()
+        self._active = False
+        self._ran = False
+        self._closed = False
+        self._tlog: TlogWriter | None = None
+        self._recorder: TruthRecorder | None = None
+        self._t_s = 0.0  # autopilot time of the last processed world step
+        self._wall_at_t = time.monotonic()
+        self._unix_boot_s: float | None = self._options.unix_time_at_boot_s
+
+    # ------------------------------------------------------------------------------------ public API
+    @property
+    def active(self) -> bool:
+        """True once the link has heard from a remote component (named values flow from then on)."""
+        return self._active
+
+    @property
+    def gps_inputs(self) -> tuple[GpsInputRecord, ...]:
+        with self._lock:
+            return tuple(self._gps_inputs)
+
+    @property
+    def odometry(self) -> tuple[OdometryRecord, ...]:
+        with self._lock:
+            return tuple(self._odometry)
+
+    def stream_interval_s(self, name: str) -> float | None:
+        """The current interval of a streamed message (None: disabled)."""
+        return self._scheduler.interval_s(name)
+
+    def stop(self) -> None:
+        """End ``run`` at the next world step (thread-safe)."""
+        self._stop.set()
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        if self._owns_link:
+            self.link.close()
+
+    def __enter__(self) -> MockAutopilot:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+    def run(self, duration_s: float) -> RunSummary:
+        """Fly ``duration_s`` of world time (or until ``stop()``), then write the truth file. Blocking."""
+        if self._ran:
+            raise RuntimeError("MockAutopilot.run may be called once")
+        if self._closed:
+            raise RuntimeError("MockAutopilot is closed")
+        self._ran = True
+        dt = self._world.dt_s
+        n_steps = math.ceil(duration_s / dt - 1e-9)
+        wall0 = time.monotonic()
+        self._wall_at_t = wall0
+        max_lag = 0.0
+        steps = 0
+        wall_end = wall0
+        home = (self._world.home_lat_deg, self._world.home_lon_deg, self._world.home_alt_m)
+        if self._truth_path is not None:
+            self._recorder = TruthRecorder(home=home, every_n_steps=self._options.truth_every_n_steps)
+        self._tlog = TlogWriter(self._tlog_path) if self._tlog_path is not None else None
+        if self._unix_boot_s is None:  # the autopilot boots now, at world time 0
+            self._unix_boot_s = time.time()
+        self._state.unix_time_at_boot_us = round(self._unix_boot_s * 1e6)
+        try:
+            for k in range(n_steps):
+                if self._stop.is_set():
+                    break
+                self._service(0.0)  # at least one look at the link per step, even when behind schedule
+                if self._realtime:
+                    target = wall0 + (k + 1) * dt / self._speed
+                    while (remaining := target - time.monotonic()) > 0.0:
+                        self._service(remaining)
+                    max_lag = max(max_lag, time.monotonic() - target)
+                self._process(self._world.step(), dt)
+                steps += 1
+            wall_end = time.monotonic()
+        finally:
+            if self._tlog is not None:
+                self._tlog.close()
+            if self._recorder is not None and self._truth_path is not None:
+                self._recorder.write(self._truth_path, self.gps_inputs, self.odometry)
+        return RunSummary(
+            world_time_s=steps * dt,
+            wall_time_s=wall_end - wall0,
+            steps=steps,
+            max_lag_s=max_lag,
+            sent=dict(self._sent),
+            received=dict(self._received),
+            gps_input=len(self._gps_inputs),
+            odometry=len(self._odometry),
+            rejected_frames=self._endpoint.rejected_frames,
+            bad_frames=self._endpoint.bad_frames,
+            link_active=self._active,
+            link=self.link.description,
+        )
+
+    # ------------------------------------------------------------------------------------ the clock
+    def _clock_s(self) -> float:
+        """Autopilot time now: the last step's time, advanced by the wall clock between steps in real time."""
+        if not self._realtime:
+            return self._t_s
+        elapsed = (time.monotonic() - self._wall_at_t) * self._speed
+        return self._t_s + min(max(elapsed, 0.0), self._world.dt_s)
+
+    def _log_frame(self, frame: bytes, sent: bool) -> None:
+        if self._tlog is not None:
+            self._tlog.write(self._state.unix_time_at_boot_us + to_time_usec(self._clock_s()), frame)
+
+    def _send(self, msg: MavlinkMessage | None) -> None:
+        if msg is None:
+            return
+        self._endpoint.send(msg)
+        self._sent[msg.get_type()] += 1
+
+    # ------------------------------------------------------------------------------------ world side
+    def _process(self, tick: WorldTick, dt: float) -> None:
+        truth = tick.truth
+        self._t_s = truth.t_s
+        self._wall_at_t = time.monotonic()
+        st = self._state
+        st.truth = truth
+        st.gnss_outage = tick.gnss_outage
+        # samples hold until replaced (sensors run at their own rates)
+        st.imu = tick.imu or st.imu
+        st.gnss = tick.gnss or st.gnss
+        st.baro = tick.baro or st.baro
+        st.mag = tick.mag or st.mag
+        st.airspeed = tick.airspeed or st.airspeed
+        st.servos = tick.servos or st.servos
+        self._drift.update(dt, tick.gnss_outage)
+        err = self._drift.error_ned_m
+        lat, lon = _offset_lat_lon(truth.lat_deg, truth.lon_deg, truth.alt_m, err)
+        st.estimate = NavEstimate(
+            lat_deg=lat,
+            lon_deg=lon,
+            alt_m=truth.alt_m - float(err[2]),
+            pos_ned_m=truth.pos_ned_m + err,
+            v_ned_m_s=truth.v_ned_m_s + self._drift.error_rate_ned_m_s,
+            error_ned_m=err.copy(),
+        )
+        if self._recorder is not None:
+            self._recorder.add_truth(truth, gnss_outage=tick.gnss_outage, estimate_error_ned_m=err)
+        if tick.ports is not None:
+            self._emit_ports(tick)
+        for name in self._scheduler.due(truth.t_s):
+            msg = self._encoder.encode(name, st, truth.t_s)
+            if msg is None:  # e.g. no baro sample yet: send at the first step that has one
+                self._scheduler.defer(name, now_s=truth.t_s)
+            self._send(msg)
+
+    def _emit_ports(self, tick: WorldTick) -> None:
+        ports = tick.ports
+        assert ports is not None
+        for name in ports.names:
+            if not 0 < len(name) <= PORT_NAME_MAX_CHARS or not name.isascii():
+                raise ValueError(f"port name {name!r}: NAMED_VALUE_FLOAT names are 1..10 ASCII characters")
+        if self._recorder is not None:
+            self._recorder.add_ports(ports)
+        if not self._active:  # ArduPilot sends named values only on links that have heard from someone
+            return
+        for name, dp in zip(ports.names, ports.dp_pa, strict=True):
+            self._send(self._encoder.named_value_float(ports.t_s, name, float(dp)))
+        if self._ports_as_debug_array:
+            if len(ports.names) > DEBUG_FLOAT_ARRAY_LEN:
+                raise ValueError(f"{len(ports.names)} ports: DEBUG_FLOAT_ARRAY holds {DEBUG_FLOAT_ARRAY_LEN}")
+            self._send(
+                self._encoder.debug_float_array(ports.t_s, PORTS_ARRAY_NAME, self._options.debug_array_id, ports.dp_pa)
+            )
+
+    # ------------------------------------------------------------------------------------ link side
+    def _service(self, timeout_s: float) -> None:
+        for msg in self._endpoint.poll(timeout_s):
+            self._handle(msg)
+
+    def _for_me(self, target_system: int, target_component: int) -> bool:
+        return target_system in (0, self._endpoint.system_id) and target_component in (
+            0,
+            self._endpoint.component_id,
+        )
+
+    def _handle(self, msg: MavlinkMessage) -> None:
+        kind = msg.get_type()
+        self._received[kind] += 1
+        own = (msg.get_srcSystem(), msg.get_srcComponent()) == (self._endpoint.system_id, self._endpoint.component_id)
+        if own:
+            return
+        if kind not in _PASSIVE_MESSAGES:
+            self._active = True
+        now_s = self._clock_s()
+        match kind:
+            case "COMMAND_LONG" | "COMMAND_INT":
+                if self._for_me(msg.target_system, msg.target_component):
+                    self._command(msg, now_s)
+            case "REQUEST_DATA_STREAM":
+                if self._for_me(msg.target_system, msg.target_component):
+                    self._request_data_stream(msg, now_s)
+            case "TIMESYNC":
+                if msg.tc1 == 0:  # a request; tc1 ≠ 0 would be a reply to us
+                    self._send(self._endpoint.mav.timesync_encode(round(now_s * 1e9), msg.ts1))
+            case "GPS_INPUT":
+                self._record_gps_input(msg, now_s)
+            case "ODOMETRY":
+                self._record_odometry(msg, now_s)
+            case _:
+                pass
+
+    def _ack(self, msg: MavlinkMessage, result: int) -> None:
+        self._send(
+            self._endpoint.mav.command_ack_encode(
+                msg.command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()
+            )
+        )
+
+    def _command(self, msg: MavlinkMessage, now_s: float) -> None:
+        cmd = msg.command
+        if cmd == mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL:
+            name = message_name(round(msg.param1))
+            if name is None:
+                self._ack(msg, mavlink2.MAV_RESULT_FAILED)
+                return
+            interval_us = msg.param2
+            if interval_us == 0:
+                self._scheduler.reset(name, now_s=now_s)
+            elif interval_us < 0:
+                self._scheduler.set_rate(name, 0.0, now_s=now_s)
+            else:
+                self._scheduler.set_interval(name, interval_us * 1e-6, now_s=now_s)
+            self._ack(msg, mavlink2.MAV_RESULT_ACCEPTED)
+        elif cmd == mavlink2.MAV_CMD_GET_MESSAGE_INTERVAL:
+            msg_id = round(msg.param1)
+            name = message_name(msg_id)
+            interval = self._scheduler.interval_s(name) if name is not None else None
+            interval_us = 0 if name is None else -1 if interval is None else round(interval * 1e6)
+            self._send(self._endpoint.mav.message_interval_encode(msg_id, interval_us))
+            self._ack(msg, mavlink2.MAV_RESULT_ACCEPTED)
+        elif cmd == mavlink2.MAV_CMD_REQUEST_MESSAGE:
+            name = message_name(round(msg.param1))
+            if name is None:
+                self._ack(msg, mavlink2.MAV_RESULT_FAILED)
+                return
+            self._ack(msg, mavlink2.MAV_RESULT_ACCEPTED)
+            self._send(self._encoder.encode(name, self._state, now_s))
+        elif cmd == mavlink2.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
+            self._ack(msg, mavlink2.MAV_RESULT_ACCEPTED)
+            self._send(self._encoder.autopilot_version(self._state, now_s))
+        else:
+            self._ack(msg, mavlink2.MAV_RESULT_UNSUPPORTED)
+
+    def _request_data_stream(self, msg: MavlinkMessage, now_s: float) -> None:
+        hz = float(msg.req_message_rate) if msg.start_stop else 0.0
+        if msg.req_stream_id == mavlink2.MAV_DATA_STREAM_ALL:
+            for stream in Stream:
+                self._scheduler.set_stream(stream, hz, now_s=now_s)
+        elif msg.req_stream_id in {s.value for s in Stream}:
+            self._scheduler.set_stream(Stream(msg.req_stream_id), hz, now_s=now_s)
+
+    def _record_gps_input(self, msg: MavlinkMessage, now_s: float) -> None:
+        rec = GpsInputRecord(
+            received_t_s=now_s,
+            time_usec=int(msg.time_usec),
+            gps_id=int(msg.gps_id),
+            ignore_flags=int(msg.ignore_flags),
+            fix_type=int(msg.fix_type),
+            lat_deg=msg.lat * 1e-7,
+            lon_deg=msg.lon * 1e-7,
+            alt_m=float(msg.alt),
+            v_ned_m_s=np.array([msg.vn, msg.ve, msg.vd], dtype=np.float64),
+            hdop=float(msg.hdop),
+            vdop=float(msg.vdop),
+            h_acc_m=float(msg.horiz_accuracy),
+            v_acc_m=float(msg.vert_accuracy),
+            speed_acc_m_s=float(msg.speed_accuracy),
+            satellites=int(msg.satellites_visible),
+            yaw_rad=math.radians(msg.yaw * 0.01) if msg.yaw else None,
+        )
+        with self._lock:
+            self._gps_inputs.append(rec)
+
+    def _record_odometry(self, msg: MavlinkMessage, now_s: float) -> None:
+        rec = OdometryRecord(
+            received_t_s=now_s,
+            time_usec=int(msg.time_usec),
+            frame_id=int(msg.frame_id),
+            child_frame_id=int(msg.child_frame_id),
+            pos_m=np.array([msg.x, msg.y, msg.z], dtype=np.float64),
+            q=np.asarray(msg.q, dtype=np.float64),
+            vel_m_s=np.array([msg.vx, msg.vy, msg.vz], dtype=np.float64),
+            rates_rad_s=np.array([msg.rollspeed, msg.pitchspeed, msg.yawspeed], dtype=np.float64),
+            pose_covariance=np.asarray(msg.pose_covariance, dtype=np.float64),
+            velocity_covariance=np.asarray(msg.velocity_covariance, dtype=np.float64),
+            reset_counter=int(msg.reset_counter),
+            estimator_type=int(msg.estimator_type),
+            quality=int(msg.quality),
+        )
+        with self._lock:
+            self._odometry.append(rec)
+
+
+def run_sitl(
+    world: World,
+    url: str,
+    *,
+    speed: float,
+    duration_s: float,
+    tlog: Path | None = None,
+    truth: Path | None = None,
+    stream_rates: Mapping[str, float] | None = None,
+    signing_key: bytes | None = None,
+    require_signing: bool = False,
+    ports_as_debug_array: bool = False,
+    options: AutopilotOptions | None = None,
+    on_ready: Callable[[str], None] | None = None,
+) -> RunSummary:
+    """Run the mock autopilot for the CLI: open ``url``, report it through ``on_ready``, fly, close.
+
+    ``on_ready`` receives the link description (e.g. ``"pty /dev/pts/4"``, ``"udpin 0.0.0.0:14550"``) before
+    the run starts, so a pty path or a bound port can be shown to the user.
+    """
+    with MockAutopilot(
+        world,
+        url,
+        speed=speed,
+        stream_rates=stream_rates,
+        signing_key=signing_key,
+        require_signing=require_signing,
+        ports_as_debug_array=ports_as_debug_array,
+        tlog_path=tlog,
+        truth_path=truth,
+        options=options,
+    ) as ap:
+        if on_ready is not None:
+            on_ready(ap.link.description)
+        return ap.run(duration_s)

@@ -1,0 +1,163 @@
+"""``sitl``: fly a scenario in the 6-DOF simulator behind the ArduPlane-like mock autopilot."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+from vdm_aero.errors import UserInputError
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser(
+        "sitl",
+        help="run the mock autopilot on a simulated flight (software in the loop)",
+        description="Fly scenario S (a shipped name or a YAML file) and speak MAVLink 2 on URL like ArduPlane: "
+        "udpout:HOST:PORT, udpin:HOST:PORT, tcp:HOST:PORT, tcpin:HOST:PORT or pty (a serial pseudo-terminal "
+        "pair; its path is printed). Named-value port messages start once the link has heard from the companion.",
+    )
+    p.add_argument("--list", action="store_true", help="list the shipped scenarios and exit")
+    p.add_argument("--scenario", metavar="S")
+    p.add_argument("--connect", metavar="URL", default="udpout:127.0.0.1:14550")
+    p.add_argument("--speed", type=float, default=1.0, help="world seconds per wall second; 0 = as fast as possible")
+    p.add_argument("--duration-s", type=float, help="world time to fly [s] (default: the scenario's duration)")
+    p.add_argument("--tlog", type=Path, help="write a MAVLink telemetry log of everything sent and received")
+    p.add_argument("--truth", type=Path, help="write the truth trajectory (see docs/sitl.md)")
+    p.add_argument("--signing-key", metavar="HEX", help="MAVLink 2 signing key, 64 hex digits (32 bytes)")
+    p.add_argument("--require-signing", action="store_true", help="reject unsigned messages from the companion")
+    p.add_argument("--ports-debug-array", action="store_true", help="also send the ports as one DEBUG_FLOAT_ARRAY")
+    p.add_argument(
+        "--stream-rate", action="append", default=[], metavar="MSG=HZ", help="override a stream rate, repeatable"
+    )
+    p.add_argument("--json", action="store_true", help="print the run summary as JSON")
+    p.set_defaults(func=run_sitl_cmd)
+
+    q = sub.add_parser(
+        "plot-flight",
+        help="plot a flown trajectory from a SITL truth file, with its GNSS outage windows",
+        description="Ground track (north/east, outage stretches highlighted), altitude and airspeed against time.",
+    )
+    q.add_argument("truth", type=Path, metavar="TRUTH")
+    q.add_argument("--out", type=Path, required=True, metavar="FILE.png")
+    q.set_defaults(func=run_plot_flight)
+
+
+def _rates(items: list[str]) -> dict[str, float]:
+    out = {}
+    for item in items:
+        name, sep, hz = item.partition("=")
+        try:
+            if not sep:
+                raise ValueError
+            out[name.strip().upper()] = float(hz)
+        except ValueError:
+            raise UserInputError(f"--stream-rate: expected MSG=HZ (e.g. ATTITUDE=50), got {item!r}") from None
+    return out
+
+
+def run_sitl_cmd(args: argparse.Namespace) -> int:
+    from sim.flight.scenario import load_scenario, scenario_names
+
+    if args.list:
+        for name in scenario_names():
+            print(name)
+        return 0
+    if not args.scenario:
+        raise UserInputError("sitl: give --scenario S (or --list)")
+    key = None
+    if args.signing_key is not None:
+        try:
+            key = bytes.fromhex(args.signing_key)
+        except ValueError:
+            key = b""
+        if len(key) != 32:
+            raise UserInputError("--signing-key: expected 64 hex digits (a 32-byte MAVLink 2 signing key)")
+    if args.require_signing and key is None:
+        raise UserInputError("--require-signing needs --signing-key")
+    if not (args.speed >= 0.0 and math.isfinite(args.speed)):
+        raise UserInputError("--speed: must be a finite number ≥ 0 (0 = as fast as possible)")
+    from sim.flight.world import FlightWorld
+    from sim.sitl.autopilot import run_sitl
+
+    scenario = load_scenario(args.scenario)
+    duration = args.duration_s if args.duration_s is not None else scenario.duration_s
+    if not duration > 0:
+        raise UserInputError("--duration-s: must be > 0")
+    from sim.flight.world import FlightEnvelopeError
+
+    world = FlightWorld(scenario)
+    try:
+        summary = run_sitl(
+            world,
+            args.connect,
+            speed=math.inf if args.speed == 0 else args.speed,
+            duration_s=duration,
+            tlog=args.tlog,
+            truth=args.truth,
+            stream_rates=_rates(args.stream_rate) or None,
+            signing_key=key,
+            require_signing=args.require_signing,
+            ports_as_debug_array=args.ports_debug_array,
+            on_ready=lambda where: print(f"mock autopilot on {where}, scenario {scenario.name}", flush=True),
+        )
+    except FlightEnvelopeError as e:  # the simulated aircraft crashed or lost control: an outcome, not a bug
+        print(f"vdm-aero: flight ended: {e}", file=sys.stderr)
+        return 1
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        sent = sum(summary["sent"].values())
+        print(
+            f"flew {summary['world_time_s']:.1f} s in {summary['wall_time_s']:.1f} s wall; sent {sent} messages, "
+            f"received {sum(summary['received'].values())}; GPS_INPUT {summary['gps_input']}, "
+            f"ODOMETRY {summary['odometry']}; link {'heard from' if summary['link_active'] else 'silent'}"
+        )
+    return 0
+
+
+def run_plot_flight(args: argparse.Namespace) -> int:
+    plot_flight(args.truth, args.out)
+    print(f"wrote {args.out}")
+    return 0
+
+
+def plot_flight(truth: Path, out: Path) -> None:
+    """Ground track with the GNSS-outage stretches, altitude and airspeed against time."""
+    import numpy as np
+
+    from vdm_aero_cli.plots import _pyplot
+
+    try:
+        z = np.load(truth, allow_pickle=False)
+        t, pos, outage = z["t_s"], z["pos_ned_m"], z["gnss_outage"].astype(bool)
+        alt, tas = z["alt_m"], z["airspeed_m_s"]
+    except (OSError, KeyError, ValueError) as e:
+        raise UserInputError(f"{truth}: not a SITL truth file ({e})") from None
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(14, 6), gridspec_kw={"width_ratios": [1.2, 1]})
+    ax = axes[0]
+    ax.plot(pos[:, 1], pos[:, 0], "-", color="tab:blue", lw=1.0, label="GNSS available")
+    ax.plot(np.where(outage, pos[:, 1], np.nan), np.where(outage, pos[:, 0], np.nan), "-", color="tab:red", lw=2.5,
+            label="GNSS outage")  # fmt: skip
+    ax.plot(pos[0, 1], pos[0, 0], "ko", label="start")
+    ax.set(xlabel="east [m]", ylabel="north [m]", title=f"ground track, {t[-1]:.0f} s")
+    ax.set_aspect("equal")
+    ax.legend()
+    ax2 = axes[1]
+    ax2.plot(t, alt, color="tab:green", label="altitude AMSL [m]")
+    ax3 = ax2.twinx()
+    ax3.plot(t, tas, color="tab:purple", lw=0.8, label="airspeed [m/s]")
+    ax3.set_ylabel("airspeed [m/s]")
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], outage.astype(int), [0]])))
+    for a, b in zip(edges[::2], edges[1::2], strict=True):
+        ax2.axvspan(t[a], t[b - 1], color="tab:red", alpha=0.15, label="GNSS outage" if a == edges[0] else None)
+    ax2.set(xlabel="t [s]", ylabel="altitude AMSL [m]", title="altitude and airspeed")
+    ax2.legend(loc="lower left")
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
