@@ -8,9 +8,31 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
+import yaml
+
 from vdm_aero.errors import SpecError
+
+
+def parse_yaml(text: str, origin: str) -> Any:
+    """YAML text → data, or one SpecError naming the origin and the line."""
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f" at line {mark.line + 1}" if mark is not None else ""
+        raise SpecError(f"{origin}: YAML syntax error{where}") from None
+
+
+def read_yaml_file(path: Path, what: str = "spec") -> Any:
+    """Read and parse a YAML file, with one-line errors naming the file."""
+    try:
+        text = path.read_text()
+    except OSError as e:
+        raise SpecError(f"{path}: cannot read {what}: {e.strerror or e}") from None
+    return parse_yaml(text, str(path))
 
 
 class SpecReader:

@@ -7,8 +7,6 @@ import sys
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from vdm_aero.dataset import load_dataset, write_dataset
 from vdm_aero.errors import SpecError, UserInputError
 from vdm_aero_cli.progress import progress_bar
@@ -41,13 +39,10 @@ def load_any_spec(name_or_path: str) -> Any:
     """Parse a preset name or spec file into a spec object of the right kind."""
     from sim.airfoil.spec import parse_spec
     from sim.presets import resolve_spec_source
+    from sim.spec_reader import parse_yaml
 
     origin, text = resolve_spec_source(name_or_path)
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        raise SpecError(f"{origin}: YAML syntax error{f' at line {mark.line + 1}' if mark else ''}") from None
+    data = parse_yaml(text, origin)
     kind = data.get("kind") if isinstance(data, dict) else None
     if kind == "airfoil":
         return parse_spec(data, origin=origin)

@@ -93,6 +93,7 @@ def run_demo(args: argparse.Namespace) -> int:
     from vdm_aero_cli.cmd_sitl import plot_flight
 
     scenario = load_scenario("survey-wind8")
+    (out / "flight").mkdir(parents=True, exist_ok=True)
     summary = run_sitl(FlightWorld(scenario), "null", speed=float("inf"), duration_s=scenario.duration_s,
                        truth=out / "flight" / "truth.npz", tlog=out / "flight" / "flight.tlog")  # fmt: skip
     plot_flight(out / "flight" / "truth.npz", out / "flight" / "trajectory.png")

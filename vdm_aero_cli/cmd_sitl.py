@@ -89,6 +89,9 @@ def run_sitl_cmd(args: argparse.Namespace) -> int:
         raise UserInputError("--duration-s: must be > 0")
     from sim.flight.world import FlightEnvelopeError
 
+    for path in (args.tlog, args.truth):
+        if path is not None:
+            path.parent.mkdir(parents=True, exist_ok=True)
     world = FlightWorld(scenario)
     try:
         summary = run_sitl(

@@ -57,6 +57,24 @@ def case_roles(ds: Dataset) -> dict[str, list[int]]:
     return roles
 
 
+def train_and_evaluate(
+    mdir: Path, ds: Dataset, roles: dict[str, list[int]], case: int, train: dict[str, Any]
+) -> tuple[AeroModel, list[dict[str, Any]]]:
+    """Train the correction net of a fitted model on ``ds``'s training cases (selected on its validation
+    cases) and evaluate on its test cases without and with noise: the rows of one table line."""
+    from vdm_aero.pipeline import evaluate_model, train_model
+
+    train_model(mdir, ds, train_cases=roles["train"], val_cases=roles["validation"], **train)
+    model = AeroModel.load(mdir)
+    rows = []
+    for noise in (0.0, NOISE):
+        r = evaluate_model(model, ds, roles["test"], noise=noise, seed=train["seed"])
+        r["case"] = case
+        r["selected_net"] = model.meta["training"]["selected"]
+        rows.append(r)
+    return model, rows
+
+
 def run_airfoil_tables(
     out: Path,
     *,
@@ -67,13 +85,14 @@ def run_airfoil_tables(
     train_noise: float,
     quiet: bool = False,
 ) -> dict[str, Any]:
-    from vdm_aero.pipeline import evaluate_model, fit_model, predictions, train_model
+    from vdm_aero.pipeline import fit_model, predictions
     from vdm_aero_cli.plots import plot_model_diagnostics, plot_predictions
 
     data = out / "data"
     urans = load_dataset(simulate_to("naca0015-urans", data / "naca0015-urans", quiet=quiet))
     tunnel = load_dataset(simulate_to("naca0015-tunnel", data / "naca0015-tunnel", quiet=quiet))
     roles = case_roles(tunnel)
+    train = {"grid": grid, "seed": seed, "max_epochs": max_epochs, "train_noise": train_noise}
     results: list[dict[str, Any]] = []
     jobs = [(case, n) for case in AIRFOIL_CASES for n in sensors]
     with progress_bar("paper tables", len(jobs)) as update:
@@ -83,22 +102,8 @@ def run_airfoil_tables(
                 fit_model(tunnel, mdir, n_sensors=n, cases=roles["train"])
             else:
                 fit_model(urans, mdir, n_sensors=n, candidates_from=tunnel)
-            train_model(
-                mdir,
-                tunnel,
-                train_cases=roles["train"],
-                val_cases=roles["validation"],
-                grid=grid,
-                seed=seed,
-                max_epochs=max_epochs,
-                train_noise=train_noise,
-            )
-            model = AeroModel.load(mdir)
-            for noise in (0.0, NOISE):
-                r = evaluate_model(model, tunnel, roles["test"], noise=noise, seed=seed)
-                r["case"] = case
-                r["selected_net"] = model.meta["training"]["selected"]
-                results.append(r)
+            model, rows = train_and_evaluate(mdir, tunnel, roles, case, train)
+            results += rows
             if n == max(sensors):
                 plot_predictions(predictions(model, tunnel, roles["test"]), out / f"case{case}-ns{n}-predictions.png",
                                  title=f"case {case}, n_s = {n}, test case {roles['test']}")  # fmt: skip
@@ -123,32 +128,19 @@ def run_uav_tables(
 ) -> dict[str, Any]:
     """The method's 3-D case: DEIM on the simulated pitching UAV (every surface point a candidate), the
     net trained on the training frequencies, selected on the validation one, evaluated on the test one."""
-    from vdm_aero.pipeline import evaluate_model, fit_model, predictions, train_model
+    from vdm_aero.pipeline import fit_model, predictions
     from vdm_aero_cli.plots import plot_ports_3d, plot_predictions
 
     ds = load_dataset(simulate_to("uav-pitch", out / "data" / "uav-pitch", quiet=quiet))
     roles = case_roles(ds)
+    train = {"grid": grid, "seed": seed, "max_epochs": max_epochs, "train_noise": train_noise}
     results: list[dict[str, Any]] = []
     with progress_bar("paper tables (uav)", len(sensors)) as update:
         for k, n in enumerate(sensors):
             mdir = out / "models" / f"uav-ns{n}"
             fit_model(ds, mdir, n_sensors=n, cases=roles["train"])
-            train_model(
-                mdir,
-                ds,
-                train_cases=roles["train"],
-                val_cases=roles["validation"],
-                grid=grid,
-                seed=seed,
-                max_epochs=max_epochs,
-                train_noise=train_noise,
-            )
-            model = AeroModel.load(mdir)
-            for noise in (0.0, NOISE):
-                r = evaluate_model(model, ds, roles["test"], noise=noise, seed=seed)
-                r["case"] = 3
-                r["selected_net"] = model.meta["training"]["selected"]
-                results.append(r)
+            model, rows = train_and_evaluate(mdir, ds, roles, 3, train)
+            results += rows
             if n == max(sensors):
                 plot_predictions(predictions(model, ds, roles["test"]), out / f"uav-ns{n}-predictions.png",
                                  title=f"UAV pitching, n_s = {n}, test case {roles['test']}")  # fmt: skip

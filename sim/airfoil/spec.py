@@ -12,10 +12,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from sim.airfoil.effects import EFFECTS, PORT_BIAS_RANGE_CP
 from sim.spec_reader import SpecReader as _Reader
+from sim.spec_reader import read_yaml_file
 from vdm_aero.errors import SpecError
 
 CASE_ROLES = ("train", "validation", "test", "unassigned")
@@ -243,14 +242,5 @@ def parse_spec(data: Any, *, origin: str = "<spec>") -> AirfoilSpec:
 def load_spec(path: str | Path) -> AirfoilSpec:
     """Read and validate a spec file."""
     p = Path(path)
-    try:
-        text = p.read_text()
-    except OSError as e:
-        raise SpecError(f"{p}: cannot read spec: {e.strerror or e}") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        where = f" at line {mark.line + 1}" if mark is not None else ""
-        raise SpecError(f"{p}: YAML syntax error{where}") from None
+    data = read_yaml_file(p)
     return parse_spec(data, origin=str(p))

@@ -18,7 +18,6 @@ from pathlib import Path
 from typing import Any, Final
 
 import numpy as np
-import yaml
 
 from sim.airfoil.effects import EFFECTS, PORT_BIAS_RANGE_CP
 from sim.airfoil.naca import naca4_params
@@ -35,6 +34,7 @@ from sim.airframe.geometry import (
 from sim.airframe.pressure import HISTORY_EFFECTS
 from sim.airframe.vlm import VlmResolution
 from sim.spec_reader import SpecReader as _Reader
+from sim.spec_reader import read_yaml_file
 from vdm_aero.dataset import Reference, default_point_names
 from vdm_aero.errors import SpecError
 
@@ -529,14 +529,5 @@ def parse_airframe_spec(data: Any, *, origin: str = "<spec>") -> AirframeSpec:
 def load_airframe_spec(path: str | Path) -> AirframeSpec:
     """Read and validate a spec file."""
     p = Path(path)
-    try:
-        text = p.read_text()
-    except OSError as e:
-        raise SpecError(f"{p}: cannot read spec: {e.strerror or e}") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        where = f" at line {mark.line + 1}" if mark is not None else ""
-        raise SpecError(f"{p}: YAML syntax error{where}") from None
+    data = read_yaml_file(p)
     return parse_airframe_spec(data, origin=str(p))

@@ -17,7 +17,6 @@ from pathlib import Path
 from typing import Any, Final
 
 import numpy as np
-import yaml
 
 from sim.flight.actuators import ACTUATORS, ActuatorSetSpec
 from sim.flight.environment import TURBULENCE_LEVELS, Atmosphere, SteadyWind
@@ -39,7 +38,7 @@ from sim.flight.sensors import (
     PortGrade,
     TimeWindow,
 )
-from sim.spec_reader import SpecReader
+from sim.spec_reader import SpecReader, parse_yaml
 from vdm_aero._typing import F64Array
 from vdm_aero.errors import ModelError, SpecError
 from vdm_aero.model import read_model_yaml
@@ -483,13 +482,7 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
             raise SpecError(f"{name}: no such scenario and no such file (scenarios: {', '.join(scenario_names())})")
         text = resources.files("sim").joinpath(*_SCENARIO_DIR, f"{name}.yaml").read_text()
         origin = f"preset:{name}"
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        where = f" at line {mark.line + 1}" if mark is not None else ""
-        raise SpecError(f"{origin}: YAML syntax error{where}") from None
-    return parse_scenario(data, origin=origin)
+    return parse_scenario(parse_yaml(text, origin), origin=origin)
 
 
 def port_points_array(ports: PortsConfig) -> F64Array:
