@@ -13,6 +13,7 @@ import itertools
 import math
 import tempfile
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -248,15 +249,18 @@ def export_onnx(net: CorrectionNet, n_inputs: int) -> bytes:
     level = quiet.level
     quiet.setLevel(logging.ERROR)
     try:
-        program = torch.onnx.export(
-            net,
-            (torch.zeros(1, n_inputs, dtype=torch.float32),),
-            dynamo=True,
-            input_names=["cp"],
-            output_names=["dcoeffs"],
-            dynamic_shapes=({0: torch.export.Dim("batch")},),
-            verbose=False,
-        )
+        with warnings.catch_warnings():
+            # torch's own pytree deprecation notice (LeafSpec), not actionable here
+            warnings.filterwarnings("ignore", category=FutureWarning, message=".*LeafSpec.*")
+            program = torch.onnx.export(
+                net,
+                (torch.zeros(1, n_inputs, dtype=torch.float32),),
+                dynamo=True,
+                input_names=["cp"],
+                output_names=["dcoeffs"],
+                dynamic_shapes=({0: torch.export.Dim("batch")},),
+                verbose=False,
+            )
     finally:
         quiet.setLevel(level)
     if program is None:
