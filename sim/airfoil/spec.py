@@ -115,7 +115,17 @@ class AirfoilSpec:
         return parse_spec(d, origin=self.origin)
 
 
-def _parse_effects(data: Any, origin: str) -> dict[str, dict[str, Any]]:
+def parse_effects(
+    data: Any,
+    origin: str,
+    *,
+    forbidden: Mapping[str, str] | None = None,
+    known_points: set[str] | None = None,
+) -> dict[str, dict[str, Any]]:
+    """Validate an ``effects:`` mapping against the library (names, parameters, ranges, requirements).
+
+    ``forbidden``: effect name → why this kind of spec cannot have it; ``known_points``: the names a
+    ``port_bias`` may refer to (None: checked by the caller). Shared by every spec kind."""
     if data is None:
         return {}
     if not isinstance(data, Mapping):
@@ -124,6 +134,8 @@ def _parse_effects(data: Any, origin: str) -> dict[str, dict[str, Any]]:
     for name, params in data.items():
         if name not in EFFECTS:
             raise SpecError(f"{origin}: effects.{name}: unknown effect (known: {', '.join(EFFECTS)})")
+        if forbidden and name in forbidden:
+            raise SpecError(f"{origin}: effects.{name}: {forbidden[name]}")
         info = EFFECTS[name]
         params = {} if params is None else params
         if not isinstance(params, Mapping):
@@ -134,6 +146,8 @@ def _parse_effects(data: Any, origin: str) -> dict[str, dict[str, Any]]:
             for tap, v in params.items():
                 if isinstance(v, bool) or not isinstance(v, int | float) or not lo <= float(v) <= hi:
                     raise SpecError(f"{origin}: effects.port_bias.{tap}: expected a Cp offset in [{lo}, {hi}]")
+                if known_points is not None and str(tap) not in known_points:
+                    raise SpecError(f"{origin}: effects.port_bias.{tap}: no surface point of that name")
                 parsed[str(tap)] = float(v)
         else:
             for p, v in params.items():
@@ -210,7 +224,7 @@ def parse_spec(data: Any, *, origin: str = "<spec>") -> AirfoilSpec:
     cp_std = noise.num("cp_std_fraction", 0.0, lo=0.0, hi=0.5)
     noise.finish()
 
-    effects = _parse_effects(r.raw("effects", {}), origin)
+    effects = parse_effects(r.raw("effects", {}), origin)
     if "port_bias" in effects:
         known = set(taps.names) if taps is not None else None
         for tap in effects["port_bias"]:

@@ -19,8 +19,9 @@ from typing import Any, Final
 
 import numpy as np
 
-from sim.airfoil.effects import EFFECTS, PORT_BIAS_RANGE_CP
+from sim.airfoil.effects import EFFECTS
 from sim.airfoil.naca import naca4_params
+from sim.airfoil.spec import parse_effects
 from sim.airframe.geometry import (
     AirframeDesign,
     ControlDesign,
@@ -396,58 +397,6 @@ def _parse_envelope(mr: _Reader) -> EnvelopeMotion:
 
 
 # ------------------------------------------------------------------------------------------ effects
-def _parse_effects(data: Any, origin: str, *, quasi_steady: bool, n_points: int) -> dict[str, dict[str, Any]]:
-    if data is None:
-        return {}
-    if not isinstance(data, Mapping):
-        raise SpecError(f"{origin}: effects: expected a mapping of effect name to parameters")
-    out: dict[str, dict[str, Any]] = {}
-    for name, params in data.items():
-        if name not in EFFECTS:
-            raise SpecError(f"{origin}: effects.{name}: unknown effect (known: {', '.join(EFFECTS)})")
-        if quasi_steady and (name in HISTORY_EFFECTS or name == "port_lag"):
-            raise SpecError(
-                f"{origin}: effects.{name}: needs a time history, but an envelope spec is quasi-steady "
-                f"(use it with motion.type sinusoidal_pitch)"
-            )
-        info = EFFECTS[name]
-        params = {} if params is None else params
-        if not isinstance(params, Mapping):
-            raise SpecError(f"{origin}: effects.{name}: expected a mapping of parameters")
-        parsed: dict[str, Any] = {}
-        if name == "port_bias":
-            lo, hi = PORT_BIAS_RANGE_CP
-            known = set(default_point_names(n_points))
-            for tap, v in params.items():
-                if isinstance(v, bool) or not isinstance(v, int | float) or not lo <= float(v) <= hi:
-                    raise SpecError(f"{origin}: effects.port_bias.{tap}: expected a Cp offset in [{lo}, {hi}]")
-                if str(tap) not in known:
-                    raise SpecError(f"{origin}: effects.port_bias.{tap}: no surface point of that name")
-                parsed[str(tap)] = float(v)
-        else:
-            for p, v in params.items():
-                if p not in info.params:
-                    raise SpecError(
-                        f"{origin}: effects.{name}.{p}: unknown parameter (known: {', '.join(info.params)})"
-                    )
-                pi = info.params[p]
-                if isinstance(v, bool) or not isinstance(v, int | float) or v != v:
-                    raise SpecError(f"{origin}: effects.{name}.{p}: expected a number, got {v!r}")
-                span = pi.high - pi.low  # twice the documented range is exploration; beyond, a typo
-                if not pi.low - span <= float(v) <= pi.high + span:
-                    raise SpecError(
-                        f"{origin}: effects.{name}.{p}: {v} [{pi.unit}] is far outside the physical "
-                        f"range [{pi.low}, {pi.high}]"
-                    )
-                parsed[p] = float(v)
-        out[str(name)] = parsed
-    for name in out:
-        for req in EFFECTS[name].requires:
-            if req not in out:
-                raise SpecError(f"{origin}: effects.{name}: requires effect '{req}' to be switched on too")
-    return out
-
-
 def _parse_calibration(data: Any, origin: str) -> dict[str, dict[str, float]]:
     if data is None:
         return {}
@@ -498,8 +447,15 @@ def parse_airframe_spec(data: Any, *, origin: str = "<spec>") -> AirframeSpec:
     else:
         raise mr.fail("type", f"'{mtype}' is not supported (supported: sinusoidal_pitch, envelope)")
     n_points = surface_for(n_target).n_points
-    effects = _parse_effects(
-        r.raw("effects", {}), origin, quasi_steady=isinstance(motion, EnvelopeMotion), n_points=n_points
+    quasi_steady = isinstance(motion, EnvelopeMotion)
+    needs_history = (
+        "needs a time history, but an envelope spec is quasi-steady (use it with motion.type sinusoidal_pitch)"
+    )
+    effects = parse_effects(
+        r.raw("effects", {}),
+        origin,
+        forbidden={n: needs_history for n in (*HISTORY_EFFECTS, "port_lag")} if quasi_steady else None,
+        known_points=set(default_point_names(n_points)),
     )
     noise = r.sub("noise", {})
     cp_std = noise.num("cp_std_fraction", 0.0, lo=0.0, hi=0.5)
