@@ -50,6 +50,16 @@ def bench_simulate_urans(repeats: int) -> dict[str, Any]:
     }
 
 
+def bench_panel_solve(repeats: int) -> dict[str, Any]:
+    """Panel-method solve (two unit solutions) at the presets' 1316 panels; bar < 1 s."""
+    from sim.airfoil.naca import naca4_nodes
+    from sim.airfoil.panel import solve_panels
+
+    nodes = naca4_nodes("0015", 1316)
+    med, _ = _median_seconds(lambda: solve_panels(nodes), repeats)
+    return {"panels": 1316, "median_seconds": round(med, 4), "bar_seconds": 1.0, "meets_bar": med < 1.0}
+
+
 def bench_aero(repeats: int) -> dict[str, Any]:
     """Run-time latency, 10 ports + 4x40 net; bar: DEIM+NN ≤ 10 µs (the method: 81 µs on a Xeon 6148)."""
     from vdm_aero_cli.cmd_bench import bench_aero as run
@@ -98,6 +108,7 @@ def bench_discovery_10_cases(repeats: int) -> dict[str, Any]:
 
 BENCHES: dict[str, Callable[[int], dict[str, Any]]] = {
     "simulate-urans": bench_simulate_urans,
+    "panel-solve": bench_panel_solve,
     "aero": bench_aero,
     "deim-select": bench_deim_select,
     "fit-scale": bench_fit_scale,
