@@ -321,24 +321,28 @@ def simulate_airframe(
         cp[start : start + len(block)] = block
 
     r = sim.run(sink, progress=progress)
-    g = sim.geometry
-    ds = Dataset(
-        name=spec.name,
-        source=f"{GENERATOR}: {spec.source}",
-        reference=sim.reference,
-        cases=r["cases"],
-        cp=cp,
-        points=g.points_b,
-        normals=g.normals_b,
-        areas=g.areas_m2,
-        alpha=r["alpha"],
-        t=r["t"],
-        case=r["case"],
-        coeffs=r["coeffs"],
-        beta=r["beta"],
-        extra=sim.extra(),
-    )
+    ds = Dataset(cp=cp, **_dataset_fields(spec, sim, r))
     return ds, r["states"]
+
+
+def _dataset_fields(spec: AirframeSpec, sim: AirframeSimulator, r: Mapping[str, Any]) -> dict[str, Any]:
+    """Everything of the data set but Cp: shared by the in-memory and the streamed writer."""
+    g = sim.geometry
+    return {
+        "name": spec.name,
+        "source": f"{GENERATOR}: {spec.source}",
+        "reference": sim.reference,
+        "cases": r["cases"],
+        "points": g.points_b,
+        "normals": g.normals_b,
+        "areas": g.areas_m2,
+        "alpha": r["alpha"],
+        "t": r["t"],
+        "case": r["case"],
+        "coeffs": r["coeffs"],
+        "beta": r["beta"],
+        "extra": sim.extra(),
+    }
 
 
 def simulate_airframe_spec(spec: AirframeSpec, *, progress: Callable[[int, int], None] | None = None) -> Dataset:
@@ -360,20 +364,6 @@ def write_airframe_dataset(
             w.cp[start : start + len(block)] = block
 
         r = sim.run(sink, progress=progress)
-        w.finish(
-            name=spec.name,
-            source=f"{GENERATOR}: {spec.source}",
-            reference=sim.reference,
-            cases=r["cases"],
-            points=g.points_b,
-            normals=g.normals_b,
-            areas=g.areas_m2,
-            alpha=r["alpha"],
-            t=r["t"],
-            case=r["case"],
-            coeffs=r["coeffs"],
-            beta=r["beta"],
-            extra=sim.extra(),
-        )
+        w.finish(**_dataset_fields(spec, sim, r))
     np.save(dest / STATES_FILE, np.ascontiguousarray(r["states"], dtype=np.float64))
     return dest
