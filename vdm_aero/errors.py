@@ -32,3 +32,7 @@ class ModelError(UserInputError):
 
 class NotFittedError(VdmAeroError):
     """An estimator was used before ``fit``: a programming error, not a user error."""
+
+
+class VehicleError(UserInputError):
+    """A nominal vehicle description that is missing, malformed or out of range."""

@@ -108,6 +108,7 @@ class LiftingSurfaceDesign:
     sweep_deg: float = 0.0
     mass_kg: float = 0.0
     control: ControlDesign | None = None
+    left_twist_offset_deg: float = 0.0
 
     @property
     def area_m2(self) -> float:
@@ -302,6 +303,7 @@ class LiftingPart:
     mirror: bool
     eta_root: float
     offset_b: tuple[float, float, float] = (0.0, 0.0, 0.0)  # design datum → body frame (CG origin) [m]
+    twist_offset_deg: float = 0.0  # added to the design twist (the left half of an asymmetric build)
 
     @property
     def name(self) -> str:
@@ -335,7 +337,7 @@ class LiftingPart:
             - (s * math.tan(math.radians(d.sweep_deg)))[:, None] * np.array([1.0, 0.0, 0.0])[None, :]
         )
         chord = d.root_chord_m + (d.tip_chord_m - d.root_chord_m) * eta
-        inc = np.radians(d.incidence_deg + d.twist_deg * eta)
+        inc = np.radians(d.incidence_deg + (d.twist_deg + self.twist_offset_deg) * eta)
         ci, si = np.cos(inc)[:, None], np.sin(inc)[:, None]
         e_c = ci * e_c0[None, :] - si * e_u0[None, :]
         e_u = si * e_c0[None, :] + ci * e_u0[None, :]
@@ -368,9 +370,9 @@ def _parts(design: AirframeDesign, offset_b: tuple[float, float, float] = (0.0, 
     eh = exposed_root(h, False)
     return (
         LiftingPart(WING_R, w, False, False, 0.0, offset_b),  # high wing: the whole span is exposed
-        LiftingPart(WING_L, w, False, True, 0.0, offset_b),
+        LiftingPart(WING_L, w, False, True, 0.0, offset_b, w.left_twist_offset_deg),
         LiftingPart(HTAIL_R, h, False, False, eh, offset_b),
-        LiftingPart(HTAIL_L, h, False, True, eh, offset_b),
+        LiftingPart(HTAIL_L, h, False, True, eh, offset_b, h.left_twist_offset_deg),
         LiftingPart(VTAIL, v, True, False, exposed_root(v, True), offset_b),
     )
 
@@ -459,7 +461,9 @@ def _lifting_surface(part: LiftingPart, n_strips: int, n_chord: int) -> dict[str
     nodes = section_nodes(part.design.airfoil, n_chord)  # (n_chord+1, 2), closed TE
     i_le = leading_edge_index(nodes)
     eta = span_stations(n_strips, part.eta_root)
-    right = LiftingPart(part.component, part.design, part.vertical, False, part.eta_root)
+    right = LiftingPart(
+        part.component, part.design, part.vertical, False, part.eta_root, twist_offset_deg=part.twist_offset_deg
+    )
     f = right.frames(eta)
     # contour nodes in 3D: (stations, nodes, 3)
     p = f.r_le[:, None, :] + f.chord[:, None, None] * (
@@ -622,12 +626,13 @@ def build_geometry(design: AirframeDesign, resolution: SurfaceResolution) -> Air
     strip_eta: list[F64Array] = []
     chord_x_c: list[F64Array] = []
     chord_upper: list[BoolArray] = []
-    right_cache: dict[int, dict[str, F64Array]] = {}
+    right_cache: dict[tuple[int, float], dict[str, F64Array]] = {}
     for part in parts:
         base = {WING_L: WING_R, HTAIL_L: HTAIL_R}.get(part.component, part.component)
-        if base not in right_cache:
-            right_cache[base] = _lifting_surface(part, *counts[base])
-        blk = _mirror(right_cache[base]) if part.mirror else right_cache[base]
+        key = (base, part.twist_offset_deg)  # an asymmetric left half is built, not mirrored from the right
+        if key not in right_cache:
+            right_cache[key] = _lifting_surface(part, *counts[base])
+        blk = _mirror(right_cache[key]) if part.mirror else right_cache[key]
         blocks.append(blk)
         strip_eta.append(np.asarray(blk["strip_eta"]))
         chord_x_c.append(np.asarray(blk["chord_x_c"]))

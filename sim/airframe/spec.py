@@ -252,6 +252,7 @@ def _parse_surface(r: _Reader, base: LiftingSurfaceDesign, *, vertical: bool) ->
         sweep_deg=r.num("sweep_deg", base.sweep_deg, lo=-45.0, hi=60.0),
         mass_kg=r.num("mass_kg", base.mass_kg, lo=0.0),
         control=ctrl,
+        left_twist_offset_deg=r.num("left_twist_offset_deg", base.left_twist_offset_deg, lo=-5.0, hi=5.0),
     )
     r.finish()
     return out

@@ -204,6 +204,18 @@ class StripAero:
     def n_ports(self) -> int:
         return len(self.ports)
 
+    @property
+    def has_slipstream(self) -> bool:
+        """Whether :meth:`outputs` carries the slipstream rows (per unit thrust coefficient); see
+        :class:`sim.flight.asbuilt.AsBuiltStripAero`."""
+        return False
+
+    def outputs(self, states: FlightStates, *, fuselage_index: IntArray | None = None) -> F64Array:
+        """What the Taylor model expands: (K, 6 + n_ports) = coefficients then port Cp (subclasses may
+        append rows, see :attr:`has_slipstream`)."""
+        coeffs, cp = self.evaluate(states, fuselage_index=fuselage_index)
+        return np.hstack([coeffs, cp])
+
     def evaluate(self, states: FlightStates, *, fuselage_index: IntArray | None = None) -> tuple[F64Array, F64Array]:
         """Truth coefficients (K, 6) (pressure integral + skin friction, body axes about the CG) and port
         Cp (K, n_ports) on the freestream dynamic pressure.
@@ -294,7 +306,11 @@ class LinearizedAero:
 
     ``matrix`` (6 + n_ports, :data:`N_FEATURES`) maps the features ``[1, Δz, Δz_i·Δz_j ...]`` (z: see
     :func:`taylor_variables`, expanded about ``z0``; products: :data:`QUADRATIC_TERMS`) to the
-    coefficients (first 6 rows) and the port Cp (the remaining rows).
+    coefficients (first 6 rows) and the port Cp (the remaining rows). With a slipstream (an as-built
+    evaluator, :attr:`StripAero.has_slipstream`) a second block of as many rows holds the change per unit
+    thrust coefficient T_c = T/(q̄·A_disk): C = (coeff_matrix + T_c·slip_coeff_matrix)·features.
+    ``sep_deficit`` [rad] (the separation lag of an as-built aircraft) is subtracted from Δα in the α²
+    feature only: the quadratic term carries the separation onset, which lags the attached flow.
     """
 
     def __init__(
@@ -305,9 +321,15 @@ class LinearizedAero:
         self._bounds = (bounds or ReexpansionBounds()).vector().tolist()
         self.z0: tuple[float, ...] = ()
         self.x0: tuple[float, ...] = ()
-        self.matrix = np.zeros((6 + exact.n_ports, N_FEATURES))
+        n = 6 + exact.n_ports
+        self.has_slipstream = exact.has_slipstream
+        self.matrix = np.zeros((2 * n if self.has_slipstream else n, N_FEATURES))
         self.coeff_matrix = self.matrix[:6]
-        self.port_matrix = self.matrix[6:]
+        self.port_matrix = self.matrix[6:n]
+        self.slip_coeff_matrix = self.matrix[n : n + 6]
+        self.slip_port_matrix = self.matrix[n + 6 :]
+        # the hot loop's one product: coefficients, then (with a slipstream) their change per unit T_c
+        self.force_rows = np.zeros((12 if self.has_slipstream else 6, N_FEATURES))
         self.updates = 0
         index = {row: j for j, row in enumerate(_BATCH)}
         self._fuselage_index = np.array([index[_fuselage_source(row)] for row in _BATCH], dtype=np.int64)
@@ -322,8 +344,7 @@ class LinearizedAero:
             for i, sign in row:
                 batch[j, i] += sign * h[i]
         states = FlightStates.from_array(flight_state(batch))
-        coeffs, cp = self.exact.evaluate(states, fuselage_index=self._fuselage_index)
-        y = np.hstack([coeffs, cp])  # (rows, 6 + P)
+        y = self.exact.outputs(states, fuselage_index=self._fuselage_index)  # (rows, 6 + P [+ 6 + P])
         at = {row: y[j] for j, row in enumerate(_BATCH)}
         y0 = at[()]
         mat = np.empty((y.shape[1], N_FEATURES))
@@ -341,6 +362,9 @@ class LinearizedAero:
             else:
                 mat[:, col] = (at[((i, 1.0), (j, 1.0))] - at[((i, 1.0),)] - at[((j, 1.0),)] + y0) / (h[i] * h[j])
         self.matrix[...] = mat
+        self.force_rows[:6] = self.coeff_matrix
+        if self.has_slipstream:
+            self.force_rows[6:] = self.slip_coeff_matrix
         self.z0 = tuple(float(v) for v in z)
         self.x0 = tuple(float(v) for v in x0)
         self.updates += 1
@@ -353,20 +377,32 @@ class LinearizedAero:
                 return True
         return False
 
-    def features(self, x: StateLike) -> F64Array:
-        """The feature vector [1, Δz, Δz_i·Δz_j ...] of a flight state relative to the expansion point."""
+    def features(self, x: StateLike, sep_deficit: float = 0.0) -> F64Array:
+        """The feature vector [1, Δz, Δz_i·Δz_j ...] of a flight state relative to the expansion point
+        (``sep_deficit`` [rad]: see the class docstring)."""
         f = np.empty(N_FEATURES)
         f[0] = 1.0
         d = taylor_variables(x) - np.asarray(self.z0)
         f[1 : N_STATE + 1] = d
         for k, (i, j) in enumerate(QUADRATIC_TERMS):
-            f[1 + N_STATE + k] = d[i] * d[j]
+            if i == j == _I_ALPHA:
+                f[1 + N_STATE + k] = (d[i] - sep_deficit) ** 2
+            else:
+                f[1 + N_STATE + k] = d[i] * d[j]
         return f
 
-    def coeffs(self, x: StateLike) -> F64Array:
-        """Taylor-model coefficients (6,) at flight state ``x``."""
-        return np.asarray(self.coeff_matrix @ self.features(x))
+    def coeffs(self, x: StateLike, thrust_coeff: float = 0.0, sep_deficit: float = 0.0) -> F64Array:
+        """Taylor-model coefficients (6,) at flight state ``x`` and thrust coefficient T_c (slipstream)."""
+        f = self.features(x, sep_deficit)
+        c = self.coeff_matrix @ f
+        if self.has_slipstream:
+            c = c + thrust_coeff * (self.slip_coeff_matrix @ f)
+        return np.asarray(c)
 
-    def ports_cp(self, x: StateLike) -> F64Array:
-        """Taylor-model port Cp (n_ports,) at flight state ``x``."""
-        return np.asarray(self.port_matrix @ self.features(x))
+    def ports_cp(self, x: StateLike, thrust_coeff: float = 0.0, sep_deficit: float = 0.0) -> F64Array:
+        """Taylor-model port Cp (n_ports,) at flight state ``x`` and thrust coefficient T_c."""
+        f = self.features(x, sep_deficit)
+        cp = self.port_matrix @ f
+        if self.has_slipstream:
+            cp = cp + thrust_coeff * (self.slip_port_matrix @ f)
+        return np.asarray(cp)

@@ -30,6 +30,7 @@ from typing import Final
 import numpy as np
 
 from vdm_aero._typing import F64Array
+from vdm_aero.atmosphere import G0_M_S2, TROPOPAUSE_M, isa
 
 __all__ = [
     "G0_M_S2",
@@ -42,14 +43,7 @@ __all__ = [
     "dryden_sigmas_m_s",
 ]
 
-# ISA sea-level constants (ISO 2533:1975)
-G0_M_S2: Final = 9.80665  # standard gravity, also used as the (constant) gravity of the dynamics
-R_AIR_J_KG_K: Final = 287.05287  # specific gas constant of dry air
-T0_K: Final = 288.15
-P0_PA: Final = 101325.0
-LAPSE_K_M: Final = 0.0065  # troposphere temperature lapse rate
-_ISA_EXPONENT: Final = G0_M_S2 / (R_AIR_J_KG_K * LAPSE_K_M)  # 5.25588
-TROPOPAUSE_M: Final = 11000.0
+# ISA (ISO 2533:1975) lives in vdm_aero.atmosphere; g0 is also the (constant) gravity of the dynamics
 
 # WGS-84 ellipsoid
 WGS84_A_M: Final = 6378137.0
@@ -73,10 +67,7 @@ class Atmosphere:
         """(static pressure [Pa], temperature [K], density [kg/m³]) at geopotential altitude ``alt_msl_m``."""
         if not -500.0 <= alt_msl_m <= TROPOPAUSE_M:
             raise ValueError(f"altitude {alt_msl_m:.1f} m is outside the ISA troposphere model [-500, 11000] m")
-        t_std = T0_K - LAPSE_K_M * alt_msl_m
-        p = P0_PA * (t_std / T0_K) ** _ISA_EXPONENT
-        t = t_std + self.isa_delta_t_k
-        return p, t, p / (R_AIR_J_KG_K * t)
+        return isa(alt_msl_m, self.isa_delta_t_k)
 
 
 @dataclass(frozen=True)

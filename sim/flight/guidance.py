@@ -311,6 +311,9 @@ class Autopilot:
         self.roll_cmd = 0.0
         self.pitch_cmd = trim.alpha_rad
         self.height_demand_m = 0.0
+        # scripted changes (calibration manoeuvres): the speed held and an offset on the route's height
+        self.airspeed_demand_m_s = route.airspeed_m_s
+        self.height_offset_m = 0.0
 
     def _lateral(self, s: NavState, l1: float) -> float:
         pos, vel = (s.north_m, s.east_m), (s.v_n, s.v_e)
@@ -357,9 +360,10 @@ class Autopilot:
         h = -s.down_m
         hdot = -s.v_d
         vdot = (s.a_n * s.v_n + s.a_e * s.v_e + s.a_d * s.v_d) / max(math.sqrt(s.v_n**2 + s.v_e**2 + s.v_d**2), 1.0)
-        hdot_dem = _clip(k.height_gain_per_s * (self.height_demand_m - h), -k.max_sink_m_s, k.max_climb_m_s)
+        h_dem = self.height_demand_m + self.height_offset_m
+        hdot_dem = _clip(k.height_gain_per_s * (h_dem - h), -k.max_sink_m_s, k.max_climb_m_s)
         vdot_dem = _clip(
-            k.speed_gain_per_s * (self.route.airspeed_m_s - s.airspeed_m_s), -k.max_accel_m_s2, k.max_accel_m_s2
+            k.speed_gain_per_s * (self.airspeed_demand_m_s - s.airspeed_m_s), -k.max_accel_m_s2, k.max_accel_m_s2
         )
         ste_dem, ste = hdot_dem + v * vdot_dem / g, hdot + v * vdot / g
         seb_dem, seb = hdot_dem - v * vdot_dem / g, hdot - v * vdot / g

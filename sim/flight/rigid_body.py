@@ -82,6 +82,9 @@ class StepInputs(NamedTuple):
     rudder: float
     alpha_dot: float  # [rad/s] filtered, from the previous steps (see FlightWorld)
     rho: float  # [kg/m³]
+    # as-built unsteady aerodynamics (sim.flight.asbuilt.UnsteadyLag; 0 for the quasi-steady design):
+    alpha_lag: float = 0.0  # [rad] circulation-lag deficit: the aerodynamics see α − alpha_lag
+    sep_deficit: float = 0.0  # [rad] separation lag: the α² (separation onset) term sees a further lag
 
 
 class Aux(NamedTuple):
@@ -153,6 +156,9 @@ class AircraftDynamics:
             float(v) for v in (i[0, 0], i[1, 1], i[2, 2], i[0, 2], inv[0, 0], inv[1, 1], inv[2, 2], inv[0, 2])
         )
         _, yp, zp = propulsion.thrust_point_b
+        # slipstream (as-built): thrust coefficient T_c = T/(q̄·A_disk) scales the aero's slip rows
+        self._inv_disk_m2 = 4.0 / (math.pi * propulsion.propeller.diameter_m**2)
+        self._slip = aero.has_slipstream
         self._const = (
             float(reference.area_m2),
             float(reference.span_m),
@@ -174,7 +180,7 @@ class AircraftDynamics:
     def _rhs(self, y: State, u: StepInputs) -> tuple[State, tuple[float, ...]]:
         # hot path (see the module docstring): locals only, plain tuples
         _, _, _, vn, ve, vd, q0, q1, q2, q3, p, q, r = y
-        wind_n, wind_e, wind_d, d_ail, d_ele, thr, d_rud, alpha_dot, rho = u
+        wind_n, wind_e, wind_d, d_ail, d_ele, thr, d_rud, alpha_dot, rho, alpha_lag, sep_deficit = u
         s_area, s_span, s_chord, mass, g, nmax, kt0, kt1, kq0, kq1, zp, yp, spin = self._const
         ixx, iyy, izz, ixz, jxx, jyy, jzz, jxz = self._inertia
         # body → NED rotation
@@ -194,7 +200,8 @@ class AircraftDynamics:
         # (z with reduced rates, see sim.flight.aero.QUADRATIC_TERMS)
         aero = self.aero
         z0 = aero.z0
-        da, db = alpha - z0[1], beta - z0[2]
+        da, db = alpha - alpha_lag - z0[1], beta - z0[2]
+        daf = da - sep_deficit
         inv_v = 1.0 / v_air
         dph = p * inv_v - z0[3]
         dail = d_ail - z0[7]
@@ -210,18 +217,26 @@ class AircraftDynamics:
             dail,
             d_ele - z0[8],
             d_rud - z0[9],
-            da * da,
+            daf * daf,
             db * db,
             dph * dph,
             dail * dail,
             dph * dail,
         )
-        cx, cy, cz, cl, cm, cn = (aero.coeff_matrix @ feat).tolist()
-        qs = 0.5 * rho * v_air * v_air * s_area
+        qbar = 0.5 * rho * v_air * v_air
+        qs = qbar * s_area
         # propeller along body x at the hub (thrust moment r × F), reaction torque about x
         n = nmax * thr
         thrust = rho * (kt0 * n * n - kt1 * n * ub)
         torque = rho * (kq0 * n * n - kq1 * n * ub)
+        if self._slip:
+            # windmilling lowers the slipstream's dynamic pressure; momentum theory fails past −½ (wake stalls)
+            tc = max(thrust * self._inv_disk_m2 / qbar, -0.5)
+            cx, cy, cz, cl, cm, cn, sx, sy, sz, sl, sm, sn = (aero.force_rows @ feat).tolist()
+            cx, cy, cz = cx + tc * sx, cy + tc * sy, cz + tc * sz
+            cl, cm, cn = cl + tc * sl, cm + tc * sm, cn + tc * sn
+        else:
+            cx, cy, cz, cl, cm, cn = (aero.force_rows @ feat).tolist()
         mx = qs * s_span * cl - spin * torque
         my = qs * s_chord * cm + zp * thrust
         mz = qs * s_span * cn - yp * thrust

@@ -19,6 +19,7 @@ from typing import Any, Final
 import numpy as np
 
 from sim.flight.actuators import ACTUATORS, ActuatorSetSpec
+from sim.flight.asbuilt import AS_BUILT_EFFECTS, AS_BUILT_PRESETS, AsBuiltSpec
 from sim.flight.environment import TURBULENCE_LEVELS, Atmosphere, SteadyWind
 from sim.flight.guidance import AUTOPILOT_GAINS, AutopilotGains, LoiterRoute, Route, SurveyRoute, WaypointRoute
 from sim.flight.propulsion import PROPELLERS, PropulsionSpec
@@ -45,9 +46,11 @@ from vdm_aero.model import read_model_yaml
 
 __all__ = [
     "KIND",
+    "MANOEUVRE_TYPES",
     "VEHICLES",
     "GnssConfig",
     "MagneticField",
+    "Manoeuvre",
     "PortsConfig",
     "Scenario",
     "SimulationConfig",
@@ -77,29 +80,66 @@ class VehiclePreset:
     actuators: ActuatorSetSpec
     gains: AutopilotGains
     description: str
+    as_built: AsBuiltSpec | None = None  # the built aircraft's differences from its design (sim.flight.asbuilt)
 
+
+_UAV_2M_PROPULSION: Final = PropulsionSpec(
+    propeller=PROPELLERS["apc-11x7e"],
+    max_rev_s=150.0,  # 9000 rpm: ~1000 Kv outrunner on a loaded 4S pack; 18.5 N static thrust (T/W 0.75)
+    # hub just ahead of the nose (x_nose = 0.42 m), on the fuselage axis (z measured from the CG)
+    thrust_point_b=(0.45, 0.0, 0.0),
+    spin=1,
+)
 
 VEHICLES: Final = {
     "uav-2m": VehiclePreset(
         name="uav-2m",
         airframe_spec="uav-envelope",
-        propulsion=PropulsionSpec(
-            propeller=PROPELLERS["apc-11x7e"],
-            max_rev_s=150.0,  # 9000 rpm: ~1000 Kv outrunner on a loaded 4S pack; 18.5 N static thrust (T/W 0.75)
-            # hub just ahead of the nose (x_nose = 0.42 m), on the fuselage axis (z measured from the CG)
-            thrust_point_b=(0.45, 0.0, 0.0),
-            spin=1,
-        ),
+        propulsion=_UAV_2M_PROPULSION,
         actuators=ACTUATORS["uav-2m-servos"],
         gains=AUTOPILOT_GAINS["uav-2m"],
         description="the reference 2 m / 2.5 kg UAV of sim.airframe (uav-envelope spec: 5000 surface points, "
         "static separation, apparent mass and skin friction) with an electric tractor propeller",
+    ),
+    "uav-2m-asbuilt": VehiclePreset(
+        name="uav-2m-asbuilt",
+        airframe_spec="uav-envelope",
+        propulsion=_UAV_2M_PROPULSION,
+        actuators=ACTUATORS["uav-2m-servos"],
+        gains=AUTOPILOT_GAINS["uav-2m"],
+        description="the reference UAV as built: its design (uav-2m) plus rigging errors, control effectiveness, "
+        "a rough skin, slipstream, unsteady aerodynamics, a payload, port installation errors and the installed "
+        "propeller (sim.flight.asbuilt; each switched by the scenario's as_built_effects)",
+        as_built=AS_BUILT_PRESETS["uav-2m-asbuilt"],
     ),
 }
 """Named vehicle presets."""
 
 
 # ------------------------------------------------------------------------------------ dataclasses
+MANOEUVRE_TYPES: Final = ("airspeed", "height", "doublet", "throttle")
+DOUBLET_AXES: Final = ("roll", "pitch", "yaw")
+
+
+@dataclass(frozen=True)
+class Manoeuvre:
+    """A scripted excitation on top of the route (calibration flights):
+
+    * ``airspeed``: from ``start_s`` the autopilot holds ``value`` [m/s] (speed sweeps);
+    * ``height``: from ``start_s`` the route's height demand is raised by ``value`` [m] (climbs and
+      descents: throttle steps through the energy controller);
+    * ``doublet``: at ``start_s`` a surface doublet on ``axis`` of ``value`` [deg], +value for half of
+      ``duration_s`` then −value for the other half, added to the autopilot's command;
+    * ``throttle``: from ``start_s`` for ``duration_s`` the throttle is held at ``value`` (0…1).
+    """
+
+    type: str
+    start_s: float
+    value: float
+    duration_s: float = 0.0
+    axis: str = ""
+
+
 @dataclass(frozen=True)
 class MagneticField:
     """The Earth's field at home in NED [T] and where the numbers come from (model, epoch, location)."""
@@ -195,6 +235,8 @@ class Scenario:
     airspeed: PitotGrade | None
     ports: PortsConfig
     simulation: SimulationConfig
+    as_built_effects: frozenset[str] = frozenset()
+    manoeuvres: tuple[Manoeuvre, ...] = ()
     origin: str = field(default="<scenario>", compare=False)
 
     @property
@@ -426,12 +468,29 @@ def parse_scenario(data: Any, *, origin: str = "<scenario>") -> Scenario:
     _check_divides(portr, "rate_hz", ports.rate_hz, sim.physics_rate_hz)
     sens.finish()
 
+    vehicle = VEHICLES[r.choice("vehicle", VEHICLES)]
+    effects: frozenset[str] = frozenset()
+    if vehicle.as_built is not None:  # required for a built aircraft: which differences are on
+        raw = r.raw("as_built_effects")
+        if raw == "all":
+            effects = frozenset(AS_BUILT_EFFECTS)
+        elif isinstance(raw, list) and all(isinstance(x, str) for x in raw):
+            bad = sorted(set(raw) - set(AS_BUILT_EFFECTS))
+            if bad:
+                raise r.fail("as_built_effects", f"unknown effects {bad} (known: {', '.join(AS_BUILT_EFFECTS)})")
+            effects = frozenset(raw)
+        else:
+            raise r.fail("as_built_effects", f"expected 'all' or a list of effect names, got {raw!r}")
+    elif r.has("as_built_effects"):
+        raise r.fail("as_built_effects", f"vehicle {vehicle.name} is a design, not an as-built aircraft")
+    manoeuvres = _parse_manoeuvres(r, duration) if r.has("manoeuvres") else ()
+
     scenario = Scenario(
         name=r.text("name"),
         description=r.text("description"),
         seed=r.integer("seed"),
         duration_s=duration,
-        vehicle=VEHICLES[r.choice("vehicle", VEHICLES)],
+        vehicle=vehicle,
         home_lat_deg=home[0],
         home_lon_deg=home[1],
         home_alt_m=home[2],
@@ -448,10 +507,38 @@ def parse_scenario(data: Any, *, origin: str = "<scenario>") -> Scenario:
         airspeed=airspeed,
         ports=ports,
         simulation=sim,
+        as_built_effects=effects,
+        manoeuvres=manoeuvres,
         origin=origin,
     )
     r.finish()
     return scenario
+
+
+def _parse_manoeuvres(r: _Reader, duration_s: float) -> tuple[Manoeuvre, ...]:
+    out = []
+    for i, item in enumerate(r.seq("manoeuvres")):
+        mr = _Reader(item, r.origin, f"{r.key('manoeuvres')}[{i}]")
+        kind = mr.text("type")
+        if kind not in MANOEUVRE_TYPES:
+            raise mr.fail("type", f"unknown manoeuvre {kind!r} (known: {', '.join(MANOEUVRE_TYPES)})")
+        start = mr.num("start_s", lo=0.0, hi=duration_s)
+        if kind == "airspeed":
+            m = Manoeuvre(kind, start, mr.num("airspeed_m_s", lo=10.0, hi=30.0))
+        elif kind == "height":
+            m = Manoeuvre(kind, start, mr.num("height_change_m", lo=-200.0, hi=200.0))
+        elif kind == "doublet":
+            axis = mr.text("axis")
+            if axis not in DOUBLET_AXES:
+                raise mr.fail("axis", f"expected one of {', '.join(DOUBLET_AXES)}, got {axis!r}")
+            m = Manoeuvre(
+                kind, start, mr.num("amplitude_deg", lo=0.5, hi=15.0), mr.num("period_s", lo=0.2, hi=10.0), axis
+            )
+        else:
+            m = Manoeuvre(kind, start, mr.num("throttle", lo=0.0, hi=1.0), mr.num("duration_s", lo=0.5, hi=120.0))
+        mr.finish()
+        out.append(m)
+    return tuple(sorted(out, key=lambda m: m.start_s))
 
 
 def _check_divides(r: _Reader, k: str, rate_hz: float, physics_rate_hz: float) -> None:

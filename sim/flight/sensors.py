@@ -516,23 +516,30 @@ class PressurePorts:
     The lag starts settled on the first sample."""
 
     def __init__(
-        self, grade: PortGrade, names: Sequence[str], rate_hz: float, lag_s: float, rng: np.random.Generator
+        self,
+        grade: PortGrade,
+        names: Sequence[str],
+        rate_hz: float,
+        lag_s: float | Sequence[float] | F64Array,
+        rng: np.random.Generator,
     ) -> None:
-        if lag_s < 0.0:
+        """``lag_s``: one tubing lag for every port, or one per port (an as-built installation whose tubes
+        differ in length) [s]."""
+        self.names = tuple(names)
+        lag = np.broadcast_to(np.asarray(lag_s, dtype=np.float64), (len(self.names),)).copy()
+        if np.any(lag < 0.0):
             raise ValueError(f"lag_s must be ≥ 0, got {lag_s}")
         self.grade = grade
-        self.names = tuple(names)
         self.rate_hz = rate_hz
-        self.lag_s = lag_s
+        self.lag_s = lag
         self.rng = rng
         self.offset_pa = rng.standard_normal(len(self.names)) * grade.offset_sigma_pa
         dt = 1.0 / rate_hz
-        if lag_s > 0.0:
-            e = math.exp(-dt / lag_s)
-            g = 1.0 - lag_s / dt * (1.0 - e)
-            self._coef = (e, 1.0 - e - g, g)  # y_k = e·y_{k−1} + (1 − e − g)·x_{k−1} + g·x_k
-        else:
-            self._coef = (0.0, 0.0, 1.0)
+        # y_k = e·y_{k−1} + (1 − e − g)·x_{k−1} + g·x_k per port (τ = 0: y = x)
+        safe = np.where(lag > 0.0, lag, 1.0)
+        e = np.where(lag > 0.0, np.exp(-dt / safe), 0.0)
+        g = np.where(lag > 0.0, 1.0 - safe / dt * (1.0 - e), 1.0)
+        self._coef = (e, 1.0 - e - g, g)
         self._x_prev: F64Array | None = None
         self._y_prev: F64Array | None = None
 

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from typing import Final
 
 import numpy as np
@@ -40,8 +40,21 @@ from sim.airframe.spec import AirframeSpec, parse_airframe_spec
 from sim.airframe.vlm import FlightStates
 from sim.flight.actuators import Actuators
 from sim.flight.aero import LinearizedAero, PortLayout, StripAero, resolve_ports
+from sim.flight.asbuilt import (
+    AsBuiltSpec,
+    AsBuiltStripAero,
+    ControlMap,
+    PortInstallationErrors,
+    UnsteadyLag,
+    as_built_airframe,
+    as_built_mass,
+    as_built_propulsion,
+    check_effects,
+    port_installation_errors,
+)
 from sim.flight.environment import G0_M_S2, DrydenTurbulence, LocalFrame
 from sim.flight.guidance import Autopilot, NavState, TrimPoint
+from sim.flight.propulsion import PropulsionSpec
 from sim.flight.rigid_body import (
     AircraftDynamics,
     Aux,
@@ -51,7 +64,7 @@ from sim.flight.rigid_body import (
     quat_from_euler,
     quat_to_dcm,
 )
-from sim.flight.scenario import VEHICLES, Scenario, VehiclePreset, port_points_array
+from sim.flight.scenario import VEHICLES, Manoeuvre, Scenario, VehiclePreset, port_points_array
 from sim.flight.sensors import Barometer, Gnss, Imu, Magnetometer, PitotAirspeed, PressurePorts, ServoOutputs
 from sim.presets import preset_text
 from sim.sitl.frames import VehicleTruth, WorldTick
@@ -85,7 +98,9 @@ class FlightEnvelopeError(VdmAeroError):
 # ---------------------------------------------------------------------------------------- vehicle
 @dataclass(frozen=True, eq=False)
 class Vehicle:
-    """A built vehicle: the preset, its airframe spec, pressure model, geometry, reference and mass."""
+    """A built vehicle: the preset, its airframe spec, pressure model, geometry, reference and mass; for an
+    as-built aircraft also the effects that are on, its CG's offset from the design CG [m] and its
+    installed propulsion (thrust point from the true CG)."""
 
     preset: VehiclePreset
     airframe: AirframeSpec
@@ -93,11 +108,19 @@ class Vehicle:
     geometry: AirframeGeometry
     reference: Reference
     mass: MassProperties
+    propulsion: PropulsionSpec
+    effects: frozenset[str] = frozenset()
+    r_cg_b: F64Array = field(default_factory=lambda: np.zeros(3))
+
+    @property
+    def as_built(self) -> AsBuiltSpec | None:
+        return self.preset.as_built
 
     @classmethod
-    def build(cls, preset: VehiclePreset | str) -> Vehicle:
-        """Build from a preset (or its name): the airframe spec's effects are completed exactly as for its
-        data set (NeuralFoil separation calibration), so the flight's truth is the data set's truth."""
+    def build(cls, preset: VehiclePreset | str, effects: frozenset[str] | None = None) -> Vehicle:
+        """Build from a preset (or its name). A design vehicle's airframe spec effects are completed exactly
+        as for its data set (NeuralFoil separation calibration), so its truth is the data set's truth; an
+        as-built vehicle adds ``effects`` (default: all of them) of :mod:`sim.flight.asbuilt`."""
         if isinstance(preset, str):
             if preset not in VEHICLES:
                 raise SpecError(f"{preset}: unknown vehicle (known: {', '.join(VEHICLES)})")
@@ -105,14 +128,31 @@ class Vehicle:
         spec = parse_airframe_spec(
             yaml.safe_load(preset_text(preset.airframe_spec)), origin=f"preset:{preset.airframe_spec}"
         )
+        asb = preset.as_built
+        if asb is None:
+            if effects:
+                raise SpecError(f"{preset.name}: a design vehicle has no as-built effects ({sorted(effects)})")
+            on: frozenset[str] = frozenset()
+        else:
+            on = check_effects(asb_all() if effects is None else effects, preset.name)
+            spec = as_built_airframe(spec, asb, on)
         sim = AirframeSimulator(spec)
+        mass = MassProperties.from_geometry(sim.geometry)
+        r_cg = np.zeros(3)
+        if asb is not None and "mass_properties" in on:
+            design_battery_kg = sim.geometry.design.mass_kg - _component_mass(sim.geometry)
+            mass, r_cg = as_built_mass(mass, sim.geometry.battery_b, design_battery_kg, asb.mass)
+        propulsion = preset.propulsion if asb is None else as_built_propulsion(preset.propulsion, asb, on, r_cg)
         return cls(
             preset=preset,
             airframe=spec,
             model=sim.model,
             geometry=sim.geometry,
             reference=sim.reference,
-            mass=MassProperties.from_geometry(sim.geometry),
+            mass=mass,
+            propulsion=propulsion,
+            effects=on,
+            r_cg_b=r_cg,
         )
 
     def port_layout(self, names: tuple[str, ...], points_b: F64Array, tolerance_m: float, where: str) -> PortLayout:
@@ -121,6 +161,20 @@ class Vehicle:
             return resolve_ports(self.geometry, names, points_b, tolerance_m, where)
         except ValueError as e:
             raise SpecError(str(e)) from None
+
+
+def asb_all() -> frozenset[str]:
+    from sim.flight.asbuilt import AS_BUILT_EFFECTS
+
+    return frozenset(AS_BUILT_EFFECTS)
+
+
+def _component_mass(geometry: AirframeGeometry) -> float:
+    """Everything but the battery: lifting surfaces, fuselage and equipment [kg]."""
+    d = geometry.design
+    return float(
+        d.wing.mass_kg + d.htail.mass_kg + d.vtail.mass_kg + d.fuselage.mass_kg + sum(e.mass_kg for e in d.equipment)
+    )
 
 
 # ------------------------------------------------------------------------------------------- trim
@@ -163,7 +217,8 @@ class Trim:
 def trim_flight(
     vehicle: Vehicle, aero: StripAero, airspeed_m_s: float, rho_kg_m3: float, *, throttle: float | None = None
 ) -> Trim:
-    """Trim wings-level straight flight with the exact aerodynamics.
+    """Trim wings-level straight flight with the exact aerodynamics (the deflections are those the flow
+    sees: an as-built aircraft's servos sit at :meth:`ControlMap.servo_for` of them).
 
     ``throttle=None``: level flight, unknowns α, β, δa, δe, δr, δ_t. A given throttle (e.g. 0 for a
     glide): the flight-path angle γ replaces δ_t as unknown. The six equations are the body-axis force
@@ -171,7 +226,8 @@ def trim_flight(
     """
     m, g = vehicle.mass.mass_kg, G0_M_S2
     ref = vehicle.reference
-    prop = vehicle.preset.propulsion
+    prop = vehicle.propulsion
+    disk_m2 = 0.25 * math.pi * prop.propeller.diameter_m**2
     inertia = np.diag(vehicle.mass.inertia_kg_m2)
     qs = 0.5 * rho_kg_m3 * airspeed_m_s**2 * ref.area_m2
     lref = np.array([ref.span_m, ref.chord_m, ref.span_m])
@@ -184,8 +240,11 @@ def trim_flight(
     def forces(z: np.ndarray) -> tuple[np.ndarray, float]:
         a, b, da, de, dr, thr, gamma = unpack(z)
         st = FlightStates.make(airspeed_m_s, alpha_rad=a, beta_rad=b, aileron_rad=da, elevator_rad=de, rudder_rad=dr)
-        c = aero.evaluate(st)[0][0]
         t, q = prop.thrust_torque(thr, airspeed_m_s * math.cos(a) * math.cos(b), rho_kg_m3)
+        if isinstance(aero, AsBuiltStripAero):
+            c = aero.coefficients(st, max(t / (disk_m2 * 0.5 * rho_kg_m3 * airspeed_m_s**2), -0.5))[0]
+        else:
+            c = aero.evaluate(st)[0][0]
         f = qs * c[0:3] + np.array([t, 0.0, 0.0])
         mom = qs * c[3:6] * lref + np.array([-prop.spin * q, zp * t, -yp * t])
         theta = a + gamma
@@ -242,10 +301,16 @@ class FlightWorld:
     ) -> None:
         self.scenario = sc = scenario
         if vehicle is None:
-            vehicle = Vehicle.build(sc.vehicle)
+            vehicle = Vehicle.build(sc.vehicle, sc.as_built_effects if sc.vehicle.as_built is not None else None)
         elif vehicle.preset.name != sc.vehicle.name:
             raise ValueError(f"vehicle {vehicle.preset.name!r} does not match the scenario's {sc.vehicle.name!r}")
+        elif vehicle.effects != sc.as_built_effects:
+            raise ValueError(
+                f"vehicle built with effects {sorted(vehicle.effects)}, the scenario has {sorted(sc.as_built_effects)}"
+            )
         self.vehicle = vehicle
+        asb = vehicle.as_built
+        on = vehicle.effects
         sim = sc.simulation
         self.dt_s = sim.dt_s
         self.home_lat_deg, self.home_lon_deg, self.home_alt_m = sc.home_lat_deg, sc.home_lon_deg, sc.home_alt_m
@@ -253,9 +318,33 @@ class FlightWorld:
         self.ports = vehicle.port_layout(
             sc.ports.names, port_points_array(sc.ports), sc.ports.tolerance_m, f"{sc.origin}: sensors.ports"
         )
-        self.strip_aero = StripAero(vehicle.model, self.ports)
+        # port installation (as-built): each port's offset, bias and tubing lag belong to the airframe
+        self.port_errors: PortInstallationErrors | None = None
+        if asb is not None and "port_installation" in on:
+            self.port_errors = port_installation_errors(self.ports.names, asb.ports)
+        self.strip_aero: StripAero
+        if asb is not None and on:
+            self.strip_aero = AsBuiltStripAero(
+                vehicle.model,
+                self.ports,
+                asb,
+                on,
+                r_cg_b=vehicle.r_cg_b,
+                propulsion=vehicle.propulsion,
+                port_offsets_m=None if self.port_errors is None else self.port_errors.offset_m,
+            )
+        else:
+            self.strip_aero = StripAero(vehicle.model, self.ports)
         self.aero = LinearizedAero(self.strip_aero)
-        self.dynamics = AircraftDynamics(vehicle.mass, vehicle.reference, sc.vehicle.propulsion, self.aero)
+        self.dynamics = AircraftDynamics(vehicle.mass, vehicle.reference, vehicle.propulsion, self.aero)
+        self.control_map = ControlMap.build(asb, on)
+        self._unsteady: UnsteadyLag | None = None
+        self._disk_m2 = 0.25 * math.pi * vehicle.propulsion.propeller.diameter_m**2
+        self._imu_arm_b = -np.asarray(vehicle.r_cg_b)  # the IMU sits at the design CG
+        self._has_arm = bool(np.any(self._imu_arm_b != 0.0))
+        self._manoeuvres = list(sc.manoeuvres)
+        self._throttle_hold: tuple[float, float] | None = None  # (until [s], throttle)
+        self._doublet: tuple[float, float, int, float] | None = None  # (start, period, axis, amplitude [rad])
 
         # independent, reproducible streams: one generator per stochastic component
         seeds = np.random.SeedSequence(sc.seed).spawn(7)
@@ -268,7 +357,8 @@ class FlightWorld:
             sc.mag.grade, np.asarray(sc.magnetic_field.ned_t), np.asarray(sc.mag.hard_iron_b_t), rngs[4]
         )
         self.pitot = PitotAirspeed(sc.airspeed, rngs[5]) if sc.airspeed is not None else None
-        self.port_sensors = PressurePorts(sc.ports.grade, self.ports.names, sc.ports.rate_hz, sc.ports.lag_s, rngs[6])
+        lag = sc.ports.lag_s if self.port_errors is None else self.port_errors.lag_s
+        self.port_sensors = PressurePorts(sc.ports.grade, self.ports.names, sc.ports.rate_hz, lag, rngs[6])
         self.servos = ServoOutputs(sim.control_rate_hz)
 
         self._div_aero = sim.steps_per(sim.aero_rate_hz)
@@ -307,9 +397,12 @@ class FlightWorld:
             0.0,
             0.0,
         )
-        self.actuators = Actuators(sc.vehicle.actuators, (tr.aileron_rad, tr.elevator_rad, tr.throttle, tr.rudder_rad))
+        # the servos sit where the flow sees the trim deflections (as-built: effectiveness and offsets)
+        sa, se, sr = self.control_map.servo_for(tr.aileron_rad, tr.elevator_rad, tr.rudder_rad)
+        self.actuators = Actuators(sc.vehicle.actuators, (sa, se, tr.throttle, sr))
         if controller is None:
-            ap = Autopilot(sc.route, sc.vehicle.gains, tr.point(), vehicle.mass.mass_kg, 1.0 / sim.control_rate_hz)
+            point = replace(tr.point(), aileron_rad=sa, elevator_rad=se, rudder_rad=sr)
+            ap = Autopilot(sc.route, sc.vehicle.gains, point, vehicle.mass.mass_kg, 1.0 / sim.control_rate_hz)
             ap.start_leg_from(st.north_m, st.east_m)
             self.autopilot: Autopilot | None = ap
             self._controller: Controller = lambda _t, s: ap.update(s)
@@ -321,6 +414,10 @@ class FlightWorld:
         self._temp_c = sc.atmosphere.at(alt0)[1] - 273.15
         self._p_static = sc.atmosphere.at(alt0)[0]
         self._wind = (float(wind0[0]), float(wind0[1]), float(wind0[2]))
+        if asb is not None and "unsteady" in on:
+            self._unsteady = UnsteadyLag(asb.unsteady, tr.alpha_rad)
+        self._alpha_lag = 0.0
+        self._sep_deficit = 0.0
         self._u = self._inputs()
         self.aero.update(self._air_state(self._y))
         self._k1, self._aux = self.dynamics.derivative(self._y, self._u)
@@ -356,10 +453,50 @@ class FlightWorld:
 
     def _inputs(self) -> StepInputs:
         a, e, t, r = self.actuators.position
-        return StepInputs(*self._wind, a, e, t, r, self._alpha_dot, self._rho)
+        a, e, r = self.control_map.apply(a, e, r)
+        return StepInputs(*self._wind, a, e, t, r, self._alpha_dot, self._rho, self._alpha_lag, self._sep_deficit)
+
+    def thrust_coeff(self) -> float:
+        """T_c = T/(q̄·A_disk) at the current state (the slipstream's strength)."""
+        a = self._aux
+        return max(a.thrust / (self._disk_m2 * 0.5 * self._rho * a.airspeed * a.airspeed), -0.5)
+
+    def aero_coeffs(self) -> F64Array:
+        """The truth's aerodynamic coefficients (6,) at the current state: body axes about the true CG, on
+        the freestream dynamic pressure and the reference geometry (what the IMU and gyros feel)."""
+        return self.aero.coeffs(self._air_state(self._y), self.thrust_coeff(), self._sep_deficit)
+
+    def _apply_manoeuvres(self, t: float, cmd: tuple[float, float, float, float]) -> tuple[float, float, float, float]:
+        """Start the scripted manoeuvres due at ``t`` and add the active ones to the commands."""
+        ap = self.autopilot
+        while self._manoeuvres and self._manoeuvres[0].start_s <= t:
+            m: Manoeuvre = self._manoeuvres.pop(0)
+            if m.type == "airspeed" and ap is not None:
+                ap.airspeed_demand_m_s = m.value
+            elif m.type == "height" and ap is not None:
+                ap.height_offset_m += m.value
+            elif m.type == "throttle":
+                self._throttle_hold = (m.start_s + m.duration_s, m.value)
+            elif m.type == "doublet":
+                axis = {"roll": 0, "pitch": 1, "yaw": 3}[m.axis]
+                self._doublet = (m.start_s, m.duration_s, axis, math.radians(m.value))
+        out = list(cmd)
+        if self._throttle_hold is not None:
+            if t < self._throttle_hold[0]:
+                out[2] = self._throttle_hold[1]
+            else:
+                self._throttle_hold = None
+        if self._doublet is not None:
+            t0, period, axis, amp = self._doublet
+            if t < t0 + period:
+                out[axis] += amp if t < t0 + 0.5 * period else -amp
+            else:
+                self._doublet = None
+        return out[0], out[1], out[2], out[3]
 
     def _air_state(self, y: tuple[float, ...]) -> tuple[float, ...]:
-        """The aerodynamic state (V, α, β, p, q, r, α̇, δa, δe, δr) at ``y`` under the current inputs."""
+        """The aerodynamic state (V, α, β, p, q, r, α̇, δa, δe, δr) at ``y`` under the current inputs (α as the
+        flow sees it: less the circulation lag of an as-built aircraft; deflections as the flow sees them)."""
         _, _, _, vn, ve, vd, q0, q1, q2, q3, p, q, r = y
         u = self._u
         an, ae, ad = vn - u.wind_n, ve - u.wind_e, vd - u.wind_d
@@ -367,7 +504,8 @@ class FlightWorld:
         vb = 2 * (q1 * q2 - q0 * q3) * an + (q0 * q0 - q1 * q1 + q2 * q2 - q3 * q3) * ae + 2 * (q2 * q3 + q0 * q1) * ad
         wb = 2 * (q1 * q3 + q0 * q2) * an + 2 * (q2 * q3 - q0 * q1) * ae + (q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3) * ad
         v = math.sqrt(ub * ub + vb * vb + wb * wb)
-        return (v, math.atan2(wb, ub), math.asin(vb / v), p, q, r, u.alpha_dot, u.aileron, u.elevator, u.rudder)
+        alpha = math.atan2(wb, ub) - u.alpha_lag
+        return (v, alpha, math.asin(vb / v), p, q, r, u.alpha_dot, u.aileron, u.elevator, u.rudder)
 
     def nav_state(self) -> NavState:
         """The truth as the autopilot reads it."""
@@ -432,6 +570,8 @@ class FlightWorld:
         alt = self.home_alt_m + height
         self._p_static, temp_k, self._rho = self.scenario.atmosphere.at(min(max(alt, -500.0), 11000.0))
         self._temp_c = temp_k - 273.15
+        if self._unsteady is not None:
+            self._alpha_lag, self._sep_deficit = self._unsteady.step(self._aux.alpha, self._aux.airspeed, dt)
         self._u = self._inputs()
         x_air = self._air_state(y)
         if n % self._div_aero == 0 or self.aero.out_of_bounds(x_air):
@@ -447,13 +587,26 @@ class FlightWorld:
         servos = None
         if n % self._div_ctrl == 0:
             cmd = self._controller(t, self.nav_state())
+            if self._manoeuvres or self._throttle_hold is not None or self._doublet is not None:
+                cmd = self._apply_manoeuvres(t, cmd)
             self.actuators.set_command(*cmd)
             self._pwm_cmd = self.actuators.pwm_of(self.actuators.command)
             servos = self.servos.sample(t, self._pwm_cmd)
 
         # --- sensors
         _, _, _, vn, ve, vd, q0, q1, q2, q3, p, q, r = y
-        imu = self.imu.sample(t, (aux.f_x, aux.f_y, aux.f_z), (p, q, r), self._u.throttle, self._temp_c)
+        f_imu = (aux.f_x, aux.f_y, aux.f_z)
+        if self._has_arm:  # the IMU off the true CG feels ω̇ × r + ω × (ω × r)
+            rx, ry, rz = self._imu_arm_b
+            k1 = self._k1
+            pd, qd, rd = k1[10], k1[11], k1[12]
+            wx, wy, wz = q * rz - r * ry, r * rx - p * rz, p * ry - q * rx  # ω × r
+            f_imu = (
+                f_imu[0] + qd * rz - rd * ry + q * wz - r * wy,
+                f_imu[1] + rd * rx - pd * rz + r * wx - p * wz,
+                f_imu[2] + pd * ry - qd * rx + p * wy - q * wx,
+            )
+        imu = self.imu.sample(t, f_imu, (p, q, r), self._u.throttle, self._temp_c)
         if n % self._div_gnss == 0:
             self.gnss.measure(t, y[0:3], y[3:6])
         gnss = self.gnss.deliver(t)
@@ -467,7 +620,9 @@ class FlightWorld:
             airspeed = self.pitot.sample(t, qbar, self._temp_c)
         ports = None
         if n % self._div_ports == 0:
-            cp = self.aero.ports_cp(x_air)
+            cp = self.aero.ports_cp(x_air, self.thrust_coeff(), self._sep_deficit)
+            if self.port_errors is not None:
+                cp = cp + self.port_errors.bias_cp
             ports = self.port_sensors.sample(t, cp * qbar)
 
         lat, lon, alt_m = self.frame.to_geodetic(y[0], y[1], y[2])

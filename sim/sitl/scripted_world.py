@@ -38,16 +38,12 @@ from sim.sitl.frames import (
     WorldTick,
 )
 from vdm_aero._typing import F64Array
+from vdm_aero.atmosphere import G0_M_S2 as GRAVITY_M_S2
+from vdm_aero.atmosphere import isa
 from vdm_aero.errors import UserInputError
 
-GRAVITY_M_S2 = 9.80665  # standard gravity
 WGS84_A_M = 6378137.0  # semi-major axis
 WGS84_E2 = 6.69437999014e-3  # first eccentricity squared
-ISA_P0_PA = 101325.0
-ISA_T0_K = 288.15
-ISA_LAPSE_K_M = 0.0065
-ISA_R_J_KGK = 287.05287
-ISA_EXPONENT = GRAVITY_M_S2 / (ISA_R_J_KGK * ISA_LAPSE_K_M)  # 5.2559
 ATTITUDE_DIFF_STEP_S = 1e-4  # central-difference step for the body rates
 BLOCK_STEPS = 400  # truth is computed vectorised over this many world steps
 ARC_TABLE_POINTS = 20001  # arc-length table of the figure-eight (per period)
@@ -56,15 +52,15 @@ PORT_NAME_MAX_CHARS = 10  # NAMED_VALUE_FLOAT.name
 
 def isa_pressure_pa(alt_m: float) -> float:
     """ISA troposphere static pressure at geometric altitude ``alt_m`` (geopotential ≈ geometric here)."""
-    return ISA_P0_PA * (1.0 - ISA_LAPSE_K_M * alt_m / ISA_T0_K) ** ISA_EXPONENT
+    return isa(alt_m)[0]
 
 
 def isa_temperature_k(alt_m: float) -> float:
-    return ISA_T0_K - ISA_LAPSE_K_M * alt_m
+    return isa(alt_m)[1]
 
 
 def isa_density_kg_m3(alt_m: float) -> float:
-    return isa_pressure_pa(alt_m) / (ISA_R_J_KGK * isa_temperature_k(alt_m))
+    return isa(alt_m)[2]
 
 
 def radii_of_curvature_m(lat_deg: float) -> tuple[float, float]:
