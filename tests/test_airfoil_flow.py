@@ -9,8 +9,8 @@ import pytest
 
 from sim.airfoil.effects import EFFECTS, effect_defaults
 from sim.airfoil.flow import WAGNER_A1, WAGNER_A2, WAGNER_B1, WAGNER_B2, AirfoilFlow
-from sim.airfoil.simulate import first_order_lag
 from vdm_aero.coefficients import lift_drag
+from vdm_aero.lag import first_order_lag
 
 CHORD_M, SPAN_M, SPEED_M_S, PIVOT = 0.3, 0.075, 30.0, 0.25
 SEP = {"alpha1_deg": 12.1, "s1_deg": 0.8, "s2_deg": 5.5, "slope_factor": 0.87}  # ≈ NeuralFoil, Re 5.4e5

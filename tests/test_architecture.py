@@ -8,18 +8,23 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def imports_of(package: str) -> dict[str, set[str]]:
-    """Top-level module names imported by each file of ``package`` (including lazy imports)."""
+def _full_imports(package: str) -> dict[str, set[str]]:
+    """Full dotted module names imported by each file of ``package``."""
     out: dict[str, set[str]] = {}
     for path in (ROOT / package).rglob("*.py"):
         names: set[str] = set()
         for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
             if isinstance(node, ast.Import):
-                names |= {a.name.split(".")[0] for a in node.names}
+                names |= {a.name for a in node.names}
             elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-                names.add(node.module.split(".")[0])
+                names.add(node.module)
         out[str(path.relative_to(ROOT))] = names
     return out
+
+
+def imports_of(package: str) -> dict[str, set[str]]:
+    """Top-level module names imported by each file of ``package`` (including lazy imports)."""
+    return {path: {n.split(".")[0] for n in names} for path, names in _full_imports(package).items()}
 
 
 def test_core_library_is_pure() -> None:
@@ -56,3 +61,24 @@ def test_no_import_time_side_effects_in_library_modules() -> None:
     for pkg in ("vdm_aero", "sim", "firmware_bridge"):
         for path in (ROOT / pkg).rglob("*.py"):
             assert "os.environ[" not in path.read_text(), f"{path} writes the environment"
+
+
+def test_the_world_owns_its_contract() -> None:
+    # sim.flight is the world: it takes nothing from the mock autopilot that consumes it
+    for path, names in _full_imports("sim/flight").items():
+        assert not [n for n in names if n.startswith("sim.sitl")], f"{path} imports {sorted(names)}"
+
+
+def test_geodesy_behind_one_door() -> None:
+    users = [p for pkg in ("vdm_aero", "sim", "vdm_aero_cli", "firmware_bridge") for p, n in imports_of(pkg).items()
+             if "pymap3d" in n]  # fmt: skip
+    assert users == ["vdm_aero/geodesy.py"], users
+
+
+def test_one_copy_of_the_shared_constants() -> None:
+    # WGS-84, ISA and the quaternion formulas live in vdm_aero (geodesy, atmosphere, rotation)
+    for pkg in ("sim", "vdm_aero_cli", "firmware_bridge"):
+        for path in (ROOT / pkg).rglob("*.py"):
+            text = path.read_text()
+            for marker in ("6378137", "101325", "288.15", "def quat_to_dcm", "def euler_zyx"):
+                assert marker not in text, f"{path} has its own copy of {marker}"

@@ -22,22 +22,21 @@ import yaml
 from sim.airframe.vlm import FlightStates
 from sim.flight.actuators import ACTUATORS, Actuators
 from sim.flight.aero import LinearizedAero, ReexpansionBounds, StripAero
+from sim.flight.contract import World, WorldTick
 from sim.flight.environment import (
     TURBULENCE_LEVELS,
     Atmosphere,
     DrydenTurbulence,
-    LocalFrame,
     dryden_length_scales_m,
     dryden_sigmas_m_s,
 )
 from sim.flight.guidance import l1_lateral_accel_circle, l1_lateral_accel_segment
 from sim.flight.propulsion import PROPELLERS, PropulsionSpec
-from sim.flight.rigid_body import euler_from_quat, quat_from_euler, quat_to_dcm
 from sim.flight.scenario import Scenario, load_scenario, parse_scenario, scenario_names
 from sim.flight.world import FlightEnvelopeError, FlightWorld, Vehicle
-from sim.sitl.frames import World, WorldTick
 from vdm_aero.errors import SpecError
 from vdm_aero.model import MODEL_FORMAT
+from vdm_aero.rotation import dcm_from_quat, euler_from_quat
 
 G = 9.80665
 
@@ -62,7 +61,7 @@ def _calm(raw: dict[str, Any], **changes: Any) -> Scenario:
 
 
 def _euler(ticks: list[WorldTick]) -> np.ndarray:
-    return np.array([euler_from_quat(*t.truth.q_nb) for t in ticks])
+    return np.array([euler_from_quat(t.truth.q_nb) for t in ticks])
 
 
 # ------------------------------------------------------------------------------------ the adapter
@@ -231,7 +230,7 @@ def test_glide_energy_rate_equals_drag_power(vehicle: Vehicle) -> None:
     v_ned = np.array([tk.truth.v_ned_m_s for tk in ticks])
     energy = m * G * h + 0.5 * m * np.sum(v_ned**2, axis=1)
     # −D·V = F_aero·v (no thrust, calm air): the aerodynamic force is m·(specific force)
-    v_b = np.array([quat_to_dcm(tk.truth.q_nb).T @ tk.truth.v_ned_m_s for tk in ticks])
+    v_b = np.array([dcm_from_quat(tk.truth.q_nb).T @ tk.truth.v_ned_m_s for tk in ticks])
     f_b = np.array([tk.truth.specific_force_b_m_s2 for tk in ticks])
     power = m * np.sum(f_b * v_b, axis=1)
     assert np.ptp(h) > 5.0 and np.ptp([tk.truth.alpha_rad for tk in ticks]) > math.radians(1.0)  # it did move
@@ -320,19 +319,6 @@ def test_dryden_intensity_and_spectrum_match_mil_f_8785c(level: str) -> None:
             assert ratio == pytest.approx(1.0, abs=0.15), (
                 f"{name} {level}: PSD ratio {ratio:.3f} in [{a:.3f}, {b:.3f}] Hz"
             )
-
-
-def test_local_frame_and_quaternion_helpers() -> None:
-    frame = LocalFrame(42.283, -71.35, 50.0)
-    m, n = frame.radii_m
-    lat, lon, alt = frame.to_geodetic(1000.0, 1000.0, -100.0)
-    assert math.radians(lat - 42.283) * (m + 50.0) == pytest.approx(1000.0)
-    assert math.radians(lon + 71.35) * (n + 50.0) * math.cos(math.radians(42.283)) == pytest.approx(1000.0)
-    assert alt == pytest.approx(150.0)
-    angles = (0.3, -0.2, 2.5)
-    assert euler_from_quat(*quat_from_euler(*angles)) == pytest.approx(angles)
-    dcm = quat_to_dcm(quat_from_euler(*angles))
-    np.testing.assert_allclose(dcm @ dcm.T, np.eye(3), atol=1e-15)
 
 
 def test_l1_guidance_geometry() -> None:

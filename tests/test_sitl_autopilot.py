@@ -24,8 +24,8 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from sim.flight.contract import WorldTick
 from sim.sitl.autopilot import AutopilotOptions, DeadReckoningDrift, MockAutopilot, RunSummary, run_sitl
-from sim.sitl.frames import WorldTick
 from sim.sitl.link import (
     MavlinkEndpoint,
     MavlinkMessage,
@@ -46,8 +46,9 @@ from sim.sitl.scripted_world import (
     scenario_config,
     scenario_names,
 )
-from sim.sitl.streams import euler_zyx, to_time_boot_ms
+from sim.sitl.streams import to_time_boot_ms
 from vdm_aero.errors import UserInputError
+from vdm_aero.rotation import euler_from_quat
 
 WAIT_S = 10.0  # upper bound of any single wait for a message (wall clock)
 COMPANION = {"system_id": 1, "component_id": mavlink2.MAV_COMP_ID_ONBOARD_COMPUTER}
@@ -490,10 +491,10 @@ def test_unit_conversions_round_trip_against_the_truth() -> None:
             assert abs(m.alt * 1e-3 - tr.alt_m) <= 0.5e-3 + 1e-9
             assert abs(m.relative_alt * 1e-3 - (tr.alt_m - world.home_alt_m)) <= 0.5e-3 + 1e-9
             np.testing.assert_allclose([m.vx, m.vy, m.vz], tr.v_ned_m_s * 100.0, atol=0.5 + 1e-9)
-            assert abs(m.hdg - math.degrees(euler_zyx(tr.q_nb)[2]) * 100.0 % 36000) <= 0.5 + 1e-6
+            assert abs(m.hdg - math.degrees(euler_from_quat(tr.q_nb)[2]) * 100.0 % 36000) <= 0.5 + 1e-6
         elif kind == "ATTITUDE":
             tr = world.at_ms(m.time_boot_ms).truth
-            np.testing.assert_allclose([m.roll, m.pitch, m.yaw], euler_zyx(tr.q_nb), atol=1e-6)
+            np.testing.assert_allclose([m.roll, m.pitch, m.yaw], euler_from_quat(tr.q_nb), atol=1e-6)
             np.testing.assert_allclose([m.rollspeed, m.pitchspeed, m.yawspeed], tr.omega_b_rad_s, atol=1e-6)
         elif kind == "ATTITUDE_QUATERNION":
             tr = world.at_ms(m.time_boot_ms).truth

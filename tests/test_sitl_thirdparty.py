@@ -28,7 +28,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from sim.sitl.autopilot import MockAutopilot, RunSummary
 from sim.sitl.link import MavlinkEndpoint, MavlinkMessage, UdpLink
 from sim.sitl.scripted_world import ScriptedWorld, scenario_config
-from sim.sitl.streams import euler_zyx
+from vdm_aero.rotation import euler_from_quat
 
 WAIT_S = 20.0  # any single wait for a message or a discovery
 MAVPROXY = Path(sys.executable).parent / "mavproxy.py"
@@ -191,7 +191,7 @@ def test_mavsdk_discovers_the_mock_and_reads_position_and_attitude() -> None:
     assert position.relative_altitude_m == pytest.approx(truth.alt_m - world.home_alt_m, abs=0.01)
     # attitude carries ATTITUDE.time_boot_ms (in µs)
     truth = world.truth_at(_step_time_s(world, round(attitude.timestamp_us / 1e3)))
-    expected = np.degrees(euler_zyx(truth.q_nb))
+    expected = np.degrees(euler_from_quat(truth.q_nb))
     got = np.array([attitude.roll_deg, attitude.pitch_deg, attitude.yaw_deg])
     np.testing.assert_allclose(got, expected, atol=ATOL_ANGLE_DEG)
     assert math.isfinite(attitude.roll_deg) and abs(attitude.roll_deg) > 5.0  # a banked turn, not zeros

@@ -19,12 +19,13 @@ import numpy as np
 from sim.airfoil.effects import EFFECTS, effect_defaults
 from sim.airfoil.flow import AirfoilFlow, EvalSurface, FlowState
 from sim.airfoil.naca import locate_taps, taps_geometry
-from sim.airfoil.simulate import AirfoilSimulator, first_order_lag
+from sim.airfoil.simulate import AirfoilSimulator
 from sim.airfoil.spec import AirfoilSpec
 from vdm_aero._typing import F64Array
 from vdm_aero.dataset import Dataset
 from vdm_aero.discrepancy import Candidate, MeasuredCase, PortInfo
 from vdm_aero.errors import UserInputError
+from vdm_aero.lag import first_order_lag
 
 HARMONICS = 4  # harmonics of the pitch motion fitted to α(t) when the frequency is known
 PORT_TOLERANCE_CHORD = 0.01

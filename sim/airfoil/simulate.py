@@ -15,6 +15,7 @@ from sim.airfoil.separation import complete_effects
 from sim.airfoil.spec import AirfoilSpec
 from vdm_aero._typing import F64Array
 from vdm_aero.dataset import Case, Dataset
+from vdm_aero.lag import first_order_lag
 
 GENERATOR = "vdm-aero sim.airfoil 0.1"
 
@@ -111,19 +112,6 @@ class AirfoilSimulator:
         a0, amp = math.radians(m.alpha0_deg), math.radians(m.amplitude_deg)
         alpha = a0 + amp * np.sin(w * t)
         return self.run_motion(t, alpha, amp * w * np.cos(w * t), -amp * w * w * np.sin(w * t), warmup=spc, rng=rng)
-
-
-def first_order_lag(t: F64Array, x: F64Array, tau_s: float) -> F64Array:
-    """First-order lag dy/dt = (x − y)/τ along axis 0, exact for x linear between samples."""
-    y = np.empty_like(x)
-    y[0] = x[0]
-    dt = np.diff(t)
-    for k in range(1, len(t)):
-        e = math.exp(-dt[k - 1] / tau_s)
-        # exact response to a ramp from x[k-1] to x[k] over dt (first-order hold)
-        g = 1.0 - tau_s / dt[k - 1] * (1.0 - e)
-        y[k] = e * y[k - 1] + (1.0 - e - g) * x[k - 1] + g * x[k]
-    return y
 
 
 def simulate_spec(spec: AirfoilSpec, *, progress: Callable[[int, int], None] | None = None) -> Dataset:

@@ -28,6 +28,7 @@ from sim.airframe.spec import ENVELOPE_VARIABLES, AirframeSpec, EnvelopeMotion, 
 from sim.airframe.vlm import STATE_COLUMNS, FlightStates
 from vdm_aero._typing import F64Array, FloatArray
 from vdm_aero.dataset import Case, Dataset, create_dataset_memmap, default_point_names
+from vdm_aero.lag import lag_coefficients
 
 __all__ = [
     "GENERATOR",
@@ -302,10 +303,8 @@ class _RowLag:
             if self.t_prev is None or self.x_prev is None or self.y_prev is None:
                 y = xi
             else:
-                dt = float(t[i]) - self.t_prev
-                e = math.exp(-dt / self.tau)
-                g = 1.0 - self.tau / dt * (1.0 - e)
-                y = e * self.y_prev + (1.0 - e - g) * self.x_prev + g * xi
+                e, a, b = (float(c) for c in lag_coefficients(float(t[i]) - self.t_prev, self.tau))
+                y = e * self.y_prev + a * self.x_prev + b * xi
             x[i] = y
             self.t_prev, self.x_prev, self.y_prev = float(t[i]), xi, y
 

@@ -1,3 +1,3 @@
 """The 6-DOF flight simulator: rigid body, aerodynamics from the airframe pressure model, propulsion,
 actuators, environment (ISA, wind, Dryden turbulence), sensors, guidance and scenarios. ``FlightWorld``
-implements :class:`sim.sitl.frames.World`; see docs/flight-sim.md."""
+implements :class:`sim.flight.contract.World`; see docs/flight-sim.md."""

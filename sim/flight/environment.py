@@ -37,7 +37,6 @@ __all__ = [
     "TURBULENCE_LEVELS",
     "Atmosphere",
     "DrydenTurbulence",
-    "LocalFrame",
     "SteadyWind",
     "dryden_length_scales_m",
     "dryden_sigmas_m_s",
@@ -45,9 +44,6 @@ __all__ = [
 
 # ISA (ISO 2533:1975) lives in vdm_aero.atmosphere; g0 is also the (constant) gravity of the dynamics
 
-# WGS-84 ellipsoid
-WGS84_A_M: Final = 6378137.0
-WGS84_E2: Final = 6.69437999014e-3
 
 FT_M: Final = 0.3048
 KT_M_S: Final = 0.514444
@@ -175,26 +171,3 @@ class DrydenTurbulence:
         x[3], x[4] = self._second_order(x[3], x[4], dist / l_w, n[3], n[4])
         half_root3 = 0.5 * math.sqrt(3.0)
         return s_u * x[0], s_v * (0.5 * x[1] + half_root3 * x[2]), s_w * (0.5 * x[3] + half_root3 * x[4])
-
-
-@dataclass(frozen=True)
-class LocalFrame:
-    """The NED frame at the home position (geodetic latitude/longitude [deg], altitude above mean sea level [m])."""
-
-    lat_deg: float
-    lon_deg: float
-    alt_m: float
-
-    @property
-    def radii_m(self) -> tuple[float, float]:
-        """(meridian radius M, prime-vertical radius N) of WGS-84 at the home latitude [m]."""
-        s = math.sin(math.radians(self.lat_deg))
-        w = math.sqrt(1.0 - WGS84_E2 * s * s)
-        return WGS84_A_M * (1.0 - WGS84_E2) / w**3, WGS84_A_M / w
-
-    def to_geodetic(self, north_m: float, east_m: float, down_m: float) -> tuple[float, float, float]:
-        """(latitude [deg], longitude [deg], altitude MSL [m]) of a NED position."""
-        m, n = self.radii_m
-        lat = self.lat_deg + math.degrees(north_m / (m + self.alt_m))
-        lon = self.lon_deg + math.degrees(east_m / ((n + self.alt_m) * math.cos(math.radians(self.lat_deg))))
-        return lat, lon, self.alt_m - down_m

@@ -38,9 +38,6 @@ __all__ = [
     "AircraftDynamics",
     "MassProperties",
     "StepInputs",
-    "euler_from_quat",
-    "quat_from_euler",
-    "quat_to_dcm",
 ]
 
 N_STATE: Final = 13
@@ -99,39 +96,6 @@ class Aux(NamedTuple):
     thrust: float
 
 
-def quat_to_dcm(q: F64Array | tuple[float, ...]) -> F64Array:
-    """Rotation matrix (3, 3) body → NED of a scalar-first unit quaternion."""
-    q0, q1, q2, q3 = (float(v) for v in q)
-    return np.array(
-        [
-            [q0 * q0 + q1 * q1 - q2 * q2 - q3 * q3, 2 * (q1 * q2 - q0 * q3), 2 * (q1 * q3 + q0 * q2)],
-            [2 * (q1 * q2 + q0 * q3), q0 * q0 - q1 * q1 + q2 * q2 - q3 * q3, 2 * (q2 * q3 - q0 * q1)],
-            [2 * (q1 * q3 - q0 * q2), 2 * (q2 * q3 + q0 * q1), q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3],
-        ]
-    )
-
-
-def quat_from_euler(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
-    """Scalar-first quaternion body → NED of ZYX Euler angles [rad]."""
-    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
-    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
-    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
-    return (
-        cr * cp * cy + sr * sp * sy,
-        sr * cp * cy - cr * sp * sy,
-        cr * sp * cy + sr * cp * sy,
-        cr * cp * sy - sr * sp * cy,
-    )
-
-
-def euler_from_quat(q0: float, q1: float, q2: float, q3: float) -> tuple[float, float, float]:
-    """ZYX Euler angles (roll, pitch, yaw) [rad] of a scalar-first quaternion body → NED."""
-    roll = math.atan2(2.0 * (q0 * q1 + q2 * q3), 1.0 - 2.0 * (q1 * q1 + q2 * q2))
-    pitch = math.asin(max(-1.0, min(1.0, 2.0 * (q0 * q2 - q3 * q1))))
-    yaw = math.atan2(2.0 * (q0 * q3 + q1 * q2), 1.0 - 2.0 * (q2 * q2 + q3 * q3))
-    return roll, pitch, yaw
-
-
 class AircraftDynamics:
     """The aircraft's equations of motion with the aerodynamics of a :class:`LinearizedAero`."""
 
@@ -183,7 +147,7 @@ class AircraftDynamics:
         wind_n, wind_e, wind_d, d_ail, d_ele, thr, d_rud, alpha_dot, rho, alpha_lag, sep_deficit = u
         s_area, s_span, s_chord, mass, g, nmax, kt0, kt1, kq0, kq1, zp, yp, spin = self._const
         ixx, iyy, izz, ixz, jxx, jyy, jzz, jxz = self._inertia
-        # body → NED rotation
+        # body → NED rotation (vdm_aero.rotation.dcm_from_quat spelt out in floats; tests compare the two)
         q00, q11, q22, q33 = q0 * q0, q1 * q1, q2 * q2, q3 * q3
         q01, q02, q03, q12, q13, q23 = q0 * q1, q0 * q2, q0 * q3, q1 * q2, q1 * q3, q2 * q3
         r11, r12, r13 = q00 + q11 - q22 - q33, 2.0 * (q12 - q03), 2.0 * (q13 + q02)

@@ -4,7 +4,7 @@ Every sensor class owns its seeded :class:`numpy.random.Generator` (never a shar
 draws its normal deviates in blocks (one generator call per few thousand samples, which is what keeps
 ten minutes of 400 Hz data cheap). Noise parameters come from named grades (``*_GRADES``) that state
 their source; installation-specific numbers (IMU vibration, magnetometer hard iron, port tubing lag and
-rate) come from the scenario. Sample types are those of :mod:`sim.sitl.frames`.
+rate) come from the scenario. Sample types are those of :mod:`sim.flight.contract`.
 
 Noise-model conventions:
 
@@ -26,8 +26,7 @@ from typing import Final
 import numpy as np
 import scipy.signal
 
-from sim.flight.environment import LocalFrame
-from sim.sitl.frames import (
+from sim.flight.contract import (
     AirspeedSample,
     BaroSample,
     GnssSample,
@@ -37,6 +36,8 @@ from sim.sitl.frames import (
     ServoSample,
 )
 from vdm_aero._typing import F64Array
+from vdm_aero.geodesy import LocalFrame
+from vdm_aero.lag import FirstOrderLag
 
 __all__ = [
     "BARO_GRADES",
@@ -534,23 +535,11 @@ class PressurePorts:
         self.lag_s = lag
         self.rng = rng
         self.offset_pa = rng.standard_normal(len(self.names)) * grade.offset_sigma_pa
-        dt = 1.0 / rate_hz
-        # y_k = e·y_{k−1} + (1 − e − g)·x_{k−1} + g·x_k per port (τ = 0: y = x)
-        safe = np.where(lag > 0.0, lag, 1.0)
-        e = np.where(lag > 0.0, np.exp(-dt / safe), 0.0)
-        g = np.where(lag > 0.0, 1.0 - safe / dt * (1.0 - e), 1.0)
-        self._coef = (e, 1.0 - e - g, g)
-        self._x_prev: F64Array | None = None
-        self._y_prev: F64Array | None = None
+        self._tubing = FirstOrderLag(1.0 / rate_hz, lag)  # per port, exact for a first-order hold
 
     def sample(self, t_s: float, dp_true_pa: F64Array) -> PortsSample:
         x = np.asarray(dp_true_pa, dtype=np.float64)
-        if self._y_prev is None or self._x_prev is None:
-            y = x.copy()
-        else:
-            e, a, b = self._coef
-            y = e * self._y_prev + a * self._x_prev + b * x
-        self._x_prev, self._y_prev = x.copy(), y
+        y = self._tubing.step(x)
         g = self.grade
         meas = y + self.offset_pa + g.noise_pa * self.rng.standard_normal(len(x))
         meas = np.clip(np.round(meas / g.resolution_pa) * g.resolution_pa, -g.range_pa, g.range_pa)

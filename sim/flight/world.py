@@ -1,9 +1,9 @@
-"""The flight simulator as a :class:`sim.sitl.frames.World`: vehicle, trim, and the stepping loop.
+"""The flight simulator as a :class:`sim.flight.contract.World`: vehicle, trim, and the stepping loop.
 
 ``FlightWorld(load_scenario("survey-wind8"))`` builds the vehicle (airframe spec → pressure model, ~2 s for
 the NeuralFoil separation calibration; pass a prebuilt :class:`Vehicle` to share it between worlds),
 trims it at the start state, and then every :meth:`FlightWorld.step` advances one RK4 step at the physics
-rate and returns a :class:`~sim.sitl.frames.WorldTick` with the truth and whatever sensors sampled.
+rate and returns a :class:`~sim.flight.contract.WorldTick` with the truth and whatever sensors sampled.
 
 Order within a step (the inputs of a step are held over it: zero-order hold at the physics rate):
 
@@ -52,7 +52,8 @@ from sim.flight.asbuilt import (
     check_effects,
     port_installation_errors,
 )
-from sim.flight.environment import G0_M_S2, DrydenTurbulence, LocalFrame
+from sim.flight.contract import VehicleTruth, WorldTick
+from sim.flight.environment import G0_M_S2, DrydenTurbulence
 from sim.flight.guidance import Autopilot, NavState, TrimPoint
 from sim.flight.propulsion import PropulsionSpec
 from sim.flight.rigid_body import (
@@ -60,17 +61,15 @@ from sim.flight.rigid_body import (
     Aux,
     MassProperties,
     StepInputs,
-    euler_from_quat,
-    quat_from_euler,
-    quat_to_dcm,
 )
 from sim.flight.scenario import VEHICLES, Manoeuvre, Scenario, VehiclePreset, port_points_array
 from sim.flight.sensors import Barometer, Gnss, Imu, Magnetometer, PitotAirspeed, PressurePorts, ServoOutputs
 from sim.presets import preset_text
-from sim.sitl.frames import VehicleTruth, WorldTick
 from vdm_aero._typing import F64Array
 from vdm_aero.dataset import Reference
 from vdm_aero.errors import SpecError, VdmAeroError
+from vdm_aero.geodesy import LocalFrame
+from vdm_aero.rotation import dcm_from_quat, euler_from_quat, quat_from_euler
 
 __all__ = [
     "ALPHA_DOT_TAU_S",
@@ -284,7 +283,7 @@ def trim_flight(
 
 # ------------------------------------------------------------------------------------------ world
 class FlightWorld:
-    """The 6-DOF flight of a scenario (implements :class:`sim.sitl.frames.World`).
+    """The 6-DOF flight of a scenario (implements :class:`sim.flight.contract.World`).
 
     ``vehicle``: a prebuilt :class:`Vehicle` of the scenario's preset (default: built here).
     ``controller``: replaces the autopilot (tests fly open loop or hold a bank), called at the control rate.
@@ -381,7 +380,7 @@ class FlightWorld:
             st.airspeed_m_s * math.sin(tr.beta_rad),
             st.airspeed_m_s * math.sin(tr.alpha_rad) * math.cos(tr.beta_rad),
         )
-        v_air_ned = quat_to_dcm(q) @ np.asarray(v_air_b)
+        v_air_ned = dcm_from_quat(q) @ np.asarray(v_air_b)
         self._wind_steady = sc.wind.ned_m_s
         self._turb_heading = sc.wind.to_heading_rad
         gust = self.turbulence.step(0.0, st.airspeed_m_s, st.height_m)
@@ -510,7 +509,7 @@ class FlightWorld:
     def nav_state(self) -> NavState:
         """The truth as the autopilot reads it."""
         n, e, d, vn, ve, vd, q0, q1, q2, q3, p, q, r = self._y
-        roll, pitch, yaw = euler_from_quat(q0, q1, q2, q3)
+        roll, pitch, yaw = euler_from_quat((q0, q1, q2, q3))
         k1 = self._k1
         return NavState(
             north_m=n,
@@ -613,7 +612,7 @@ class FlightWorld:
         baro = self.baro.sample(t, self._p_static, self._temp_c) if n % self._div_baro == 0 else None
         mag = None
         if n % self._div_mag == 0:
-            mag = self.mag.sample(t, quat_to_dcm((q0, q1, q2, q3)))
+            mag = self.mag.sample(t, dcm_from_quat((q0, q1, q2, q3)))
         qbar = 0.5 * self._rho * aux.airspeed * aux.airspeed
         airspeed = None
         if self.pitot is not None and n % self._div_pitot == 0:

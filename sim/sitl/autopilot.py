@@ -1,4 +1,4 @@
-"""The SITL mock autopilot: an ArduPlane-like MAVLink 2 peer driven by a :class:`~sim.sitl.frames.World`.
+"""The SITL mock autopilot: an ArduPlane-like MAVLink 2 peer driven by a :class:`~sim.flight.contract.World`.
 
 From a companion's side it behaves like ArduPlane in AUTO (see docs/sitl.md): HEARTBEAT at 1 Hz as a
 fixed-wing ArduPilot, telemetry at SRx_-like stream rates, MAV_CMD_SET_MESSAGE_INTERVAL /
@@ -27,7 +27,7 @@ from typing import TypedDict
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from sim.sitl.frames import World, WorldTick
+from sim.flight.contract import World, WorldTick
 from sim.sitl.link import Link, MavlinkEndpoint, MavlinkMessage, SigningConfig, open_link
 from sim.sitl.streams import (
     DEBUG_FLOAT_ARRAY_LEN,
@@ -41,11 +41,9 @@ from sim.sitl.streams import (
     to_time_usec,
 )
 from sim.sitl.tlog import GpsInputRecord, OdometryRecord, TlogWriter, TruthRecorder
-from vdm_aero._typing import F64Array
 from vdm_aero.errors import UserInputError
+from vdm_aero.geodesy import LocalFrame
 
-WGS84_A_M = 6378137.0
-WGS84_E2 = 6.69437999014e-3
 PORT_NAME_MAX_CHARS = 10
 PORTS_ARRAY_NAME = "PORTS"
 # messages that do not make a link "active" (ArduPilot: radio modems' own reports)
@@ -122,14 +120,6 @@ class _DeadReckoning:
         self._in_outage = outage
 
 
-def _offset_lat_lon(lat_deg: float, lon_deg: float, alt_m: float, d_ned_m: F64Array) -> tuple[float, float]:
-    s2 = math.sin(math.radians(lat_deg)) ** 2
-    w = math.sqrt(1.0 - WGS84_E2 * s2)
-    r_n = WGS84_A_M * (1.0 - WGS84_E2) / w**3 + alt_m
-    r_e = (WGS84_A_M / w + alt_m) * math.cos(math.radians(lat_deg))
-    return lat_deg + math.degrees(float(d_ned_m[0]) / r_n), lon_deg + math.degrees(float(d_ned_m[1]) / r_e)
-
-
 class MockAutopilot:
     """An ArduPlane-like MAVLink autopilot fed by ``world``, on the transport ``url`` (or a ready :class:`Link`).
 
@@ -176,6 +166,7 @@ class MockAutopilot:
         )
         self._encoder = TelemetryEncoder(self._endpoint.mav)
         home = (world.home_lat_deg, world.home_lon_deg, world.home_alt_m)
+        self._frame = LocalFrame(*home)
         self._state = SensorState(home)
         self._drift = _DeadReckoning(self._options.drift)
         self._stop = threading.Event()
@@ -321,11 +312,12 @@ class MockAutopilot:
         st.servos = tick.servos or st.servos
         self._drift.update(dt, tick.gnss_outage)
         err = self._drift.error_ned_m
-        lat, lon = _offset_lat_lon(truth.lat_deg, truth.lon_deg, truth.alt_m, err)
+        pos_est = truth.pos_ned_m + err
+        lat, lon, alt = self._frame.to_geodetic(float(pos_est[0]), float(pos_est[1]), float(pos_est[2]))
         st.estimate = NavEstimate(
             lat_deg=lat,
             lon_deg=lon,
-            alt_m=truth.alt_m - float(err[2]),
+            alt_m=alt,
             pos_ned_m=truth.pos_ned_m + err,
             v_ned_m_s=truth.v_ned_m_s + self._drift.error_rate_ned_m_s,
             error_ned_m=err.copy(),

@@ -1,4 +1,4 @@
-"""A deterministic scripted :class:`~sim.sitl.frames.World`: a coordinated circle or figure-eight.
+"""A deterministic scripted :class:`~sim.flight.contract.World`: a coordinated circle or figure-eight.
 
 It stands in for the flight simulator in tests and lets the mock autopilot run before ``sim.flight`` is
 wired. The truth is kinematically consistent:
@@ -26,7 +26,7 @@ from typing import Literal
 
 import numpy as np
 
-from sim.sitl.frames import (
+from sim.flight.contract import (
     AirspeedSample,
     BaroSample,
     GnssSample,
@@ -41,9 +41,9 @@ from vdm_aero._typing import F64Array
 from vdm_aero.atmosphere import G0_M_S2 as GRAVITY_M_S2
 from vdm_aero.atmosphere import isa
 from vdm_aero.errors import UserInputError
+from vdm_aero.geodesy import LocalFrame
+from vdm_aero.rotation import quat_from_dcm
 
-WGS84_A_M = 6378137.0  # semi-major axis
-WGS84_E2 = 6.69437999014e-3  # first eccentricity squared
 ATTITUDE_DIFF_STEP_S = 1e-4  # central-difference step for the body rates
 BLOCK_STEPS = 400  # truth is computed vectorised over this many world steps
 ARC_TABLE_POINTS = 20001  # arc-length table of the figure-eight (per period)
@@ -61,13 +61,6 @@ def isa_temperature_k(alt_m: float) -> float:
 
 def isa_density_kg_m3(alt_m: float) -> float:
     return isa(alt_m)[2]
-
-
-def radii_of_curvature_m(lat_deg: float) -> tuple[float, float]:
-    """WGS-84 meridian (north) and prime-vertical (east) radii of curvature at ``lat_deg``."""
-    s2 = math.sin(math.radians(lat_deg)) ** 2
-    w = math.sqrt(1.0 - WGS84_E2 * s2)
-    return WGS84_A_M * (1.0 - WGS84_E2) / w**3, WGS84_A_M / w
 
 
 @dataclass(frozen=True)
@@ -162,35 +155,6 @@ def sphere_cp(cos_gamma: F64Array) -> F64Array:
     return 1.0 - 2.25 * (1.0 - c * c)
 
 
-def dcm_to_quaternion(c_nb: F64Array) -> F64Array:
-    """(n, 3, 3) body→NED rotation matrices → (n, 4) scalar-first unit quaternions (w ≥ 0)."""
-    m = c_nb
-    tr = m[:, 0, 0] + m[:, 1, 1] + m[:, 2, 2]
-    cand = np.stack(
-        [
-            np.stack([1.0 + tr, m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0], m[:, 1, 0] - m[:, 0, 1]], axis=1),
-            np.stack(
-                [m[:, 2, 1] - m[:, 1, 2], 1.0 + 2 * m[:, 0, 0] - tr, m[:, 0, 1] + m[:, 1, 0], m[:, 0, 2] + m[:, 2, 0]],
-                axis=1,
-            ),
-            np.stack(
-                [m[:, 0, 2] - m[:, 2, 0], m[:, 0, 1] + m[:, 1, 0], 1.0 + 2 * m[:, 1, 1] - tr, m[:, 1, 2] + m[:, 2, 1]],
-                axis=1,
-            ),
-            np.stack(
-                [m[:, 1, 0] - m[:, 0, 1], m[:, 0, 2] + m[:, 2, 0], m[:, 1, 2] + m[:, 2, 1], 1.0 + 2 * m[:, 2, 2] - tr],
-                axis=1,
-            ),
-        ],
-        axis=1,
-    )  # (n, 4 candidates, 4)
-    pick = np.argmax(np.stack([tr, m[:, 0, 0], m[:, 1, 1], m[:, 2, 2]], axis=1), axis=1)
-    q = cand[np.arange(len(pick)), pick]
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    q *= np.where(q[:, :1] < 0.0, -1.0, 1.0)
-    return q
-
-
 @dataclass(frozen=True)
 class _Kinematics:
     """Vectorised truth over a block of times."""
@@ -267,7 +231,7 @@ class _HorizontalPath:
 
 
 class ScriptedWorld:
-    """A :class:`~sim.sitl.frames.World` flying the scripted path. Deterministic for a given config and rng.
+    """A :class:`~sim.flight.contract.World` flying the scripted path. Deterministic for a given config and rng.
 
     ``rng`` is required when the config has sensor noise. ``truth_at`` evaluates the noise-free truth at
     any time (tests compare the autopilot's messages with it).
@@ -297,7 +261,7 @@ class ScriptedWorld:
                 ("servos", config.servo_rate_hz),
             )
         }
-        self._r_north_m, self._r_east_m = radii_of_curvature_m(config.home_lat_deg)
+        self._frame = LocalFrame(config.home_lat_deg, config.home_lon_deg, config.home_alt_m)
         self._wind_ned = np.asarray(config.wind_ned_m_s, dtype=np.float64)
         self._mag_ned = np.asarray(config.mag_field_ned_t, dtype=np.float64)
         self._port_normals_b = port_normals_b(len(config.port_names))
@@ -347,18 +311,14 @@ class ScriptedWorld:
         c_dot = (self._kinematics(t_s + h).c_nb - self._kinematics(t_s - h).c_nb) / (2.0 * h)
         omega_x = np.einsum("nji,njk->nik", k.c_nb, c_dot)  # Cᵀ Ċ = [ω×]
         omega_b = np.stack([omega_x[:, 2, 1], omega_x[:, 0, 2], omega_x[:, 1, 0]], axis=1)
-        q_nb = dcm_to_quaternion(k.c_nb)
+        q_nb = quat_from_dcm(k.c_nb)
         f_ned = k.a_ned_m_s2 - np.array([0.0, 0.0, GRAVITY_M_S2])
         f_b = np.einsum("nji,nj->ni", k.c_nb, f_ned)
         v_air_b = np.einsum("nji,nj->ni", k.c_nb, k.v_ned_m_s - self._wind_ned)
         tas = np.linalg.norm(v_air_b, axis=1)
         alpha = np.arctan2(v_air_b[:, 2], v_air_b[:, 0])
         beta = np.arcsin(np.clip(v_air_b[:, 1] / tas, -1.0, 1.0))
-        lat = self.config.home_lat_deg + np.degrees(k.pos_ned_m[:, 0] / (self._r_north_m + self.home_alt_m))
-        lon = self.config.home_lon_deg + np.degrees(
-            k.pos_ned_m[:, 1] / ((self._r_east_m + self.home_alt_m) * math.cos(math.radians(self.home_lat_deg)))
-        )
-        alt = self.home_alt_m - k.pos_ned_m[:, 2]
+        lat, lon, alt = self._frame.to_geodetic_array(k.pos_ned_m)
         speed_h = np.linalg.norm(k.v_ned_m_s, axis=1)
         tangential = np.einsum("ni,ni->n", k.a_ned_m_s2, k.v_ned_m_s) / speed_h
         climb_term = GRAVITY_M_S2 * (-k.v_ned_m_s[:, 2]) / speed_h
@@ -404,10 +364,7 @@ class ScriptedWorld:
         truth = self.truth_at(t_valid)
         n_h = self._noise(cfg.noise.gnss_horizontal_m, 2)
         n_v = float(self._noise(cfg.noise.gnss_vertical_m)[0])
-        lat = truth.lat_deg + math.degrees(n_h[0] / (self._r_north_m + self.home_alt_m))
-        lon = truth.lon_deg + math.degrees(
-            n_h[1] / ((self._r_east_m + self.home_alt_m) * math.cos(math.radians(self.home_lat_deg)))
-        )
+        lat, lon, _ = self._frame.offset(truth.lat_deg, truth.lon_deg, truth.alt_m, (n_h[0], n_h[1], 0.0))
         return GnssSample(
             t_s=t_valid,
             lat_deg=lat,

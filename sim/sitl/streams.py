@@ -20,7 +20,7 @@ from enum import IntEnum
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from sim.sitl.frames import (
+from sim.flight.contract import (
     AirspeedSample,
     BaroSample,
     GnssSample,
@@ -31,11 +31,12 @@ from sim.sitl.frames import (
 )
 from sim.sitl.link import MavlinkMessage
 from vdm_aero._typing import F64Array
+from vdm_aero.atmosphere import pressure_altitude_m
 from vdm_aero.errors import UserInputError
+from vdm_aero.rotation import euler_from_quat
 
 GRAVITY_M_S2 = 9.80665  # ArduPilot's GRAVITY_MSS: RAW_IMU/SCALED_IMU accelerations are in mG of it
 RHO0_KG_M3 = 1.225  # sea-level density: equivalent airspeed from pitot Δp, as ArduPilot's ARSPD_RATIO = 2/ρ0
-ISA_P0_PA = 101325.0
 UINT16_UNKNOWN = 65535
 DEBUG_FLOAT_ARRAY_LEN = 58
 SCHEDULE_EPSILON_S = 1e-6  # a message due within this of the tick is sent at it
@@ -231,23 +232,9 @@ def to_gauss(t: float) -> float:
     return t * 1e4
 
 
-def pressure_altitude_m(p_pa: float) -> float:
-    """ISA pressure altitude of a static pressure (what HIGHRES_IMU.pressure_alt reports)."""
-    return 44330.77 * (1.0 - (p_pa / ISA_P0_PA) ** 0.190263)
-
-
 def equivalent_airspeed_m_s(dp_pa: float) -> float:
     """Pitot Δp → equivalent airspeed, ``sqrt(2Δp/ρ0)`` (ArduPilot's airspeed with ARSPD_RATIO = 2/ρ0)."""
     return math.sqrt(2.0 * max(dp_pa, 0.0) / RHO0_KG_M3)
-
-
-def euler_zyx(q: F64Array) -> tuple[float, float, float]:
-    """Roll, pitch, yaw [rad] (yaw in −π..π) of a scalar-first body→NED quaternion."""
-    w, x, y, z = (float(v) for v in q)
-    roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
-    pitch = math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x))))
-    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-    return roll, pitch, yaw
 
 
 def _clamp(v: int, lo: int, hi: int) -> int:
@@ -466,7 +453,7 @@ class TelemetryEncoder:
         est, truth = state.estimate, state.truth
         if est is None or truth is None:
             return None
-        yaw = euler_zyx(truth.q_nb)[2]
+        yaw = euler_from_quat(truth.q_nb)[2]
         return self._mav.global_position_int_encode(
             to_time_boot_ms(t_s),
             to_deg_e7(est.lat_deg),
@@ -490,7 +477,7 @@ class TelemetryEncoder:
         if truth is None:
             return None
         return self._mav.attitude_encode(
-            to_time_boot_ms(t_s), *euler_zyx(truth.q_nb), *(float(v) for v in truth.omega_b_rad_s)
+            to_time_boot_ms(t_s), *euler_from_quat(truth.q_nb), *(float(v) for v in truth.omega_b_rad_s)
         )
 
     def attitude_quaternion(self, state: SensorState, t_s: float) -> MavlinkMessage | None:
@@ -512,7 +499,7 @@ class TelemetryEncoder:
         if est is None or truth is None:
             return None
         airspeed = equivalent_airspeed_m_s(state.airspeed.dp_pa) if state.airspeed is not None else truth.airspeed_m_s
-        yaw = euler_zyx(truth.q_nb)[2]
+        yaw = euler_from_quat(truth.q_nb)[2]
         return self._mav.vfr_hud_encode(
             airspeed,
             math.hypot(float(est.v_ned_m_s[0]), float(est.v_ned_m_s[1])),

@@ -21,7 +21,7 @@ from typing import BinaryIO
 
 import numpy as np
 
-from sim.sitl.frames import PortsSample, VehicleTruth
+from sim.flight.contract import PortsSample, VehicleTruth
 from vdm_aero._typing import F64Array
 
 TRUTH_FORMAT = "vdm-aero-sitl-truth/1"

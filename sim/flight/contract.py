@@ -1,4 +1,4 @@
-"""The contract between the simulated world and the mock autopilot: truth and sensor samples, SI units.
+"""The world contract (``sim.flight`` is the world): truth and sensor samples, SI units.
 
 The world (``sim.flight``) produces one :class:`WorldTick` per simulation step; the mock autopilot turns
 the samples into MAVLink messages (its own unit conversions: it is the peer under test, independent
