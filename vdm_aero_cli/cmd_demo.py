@@ -19,8 +19,9 @@ def register(sub: Any) -> None:
         help="run the whole pipeline on the shipped presets",
         description="Simulate the URANS-like and tunnel-like NACA 0015 presets, fit the DEIM model, train "
         "the correction net (quick grid), evaluate both of the method's cases, print the tables, and run the "
-        "discrepancy workflow (URANS preset against the tunnel preset), the 3-D UAV pitching case, and a SITL "
-        "flight of the survey scenario behind the mock autopilot.",
+        "discrepancy workflow (URANS preset against the tunnel preset), the 3-D UAV pitching case, a SITL "
+        "flight of the survey scenario behind the mock autopilot, and the as-built aircraft's in-flight "
+        "calibration (short).",
     )
     p.add_argument("--out", type=Path, default=Path("out/demo"), help="output directory (default out/demo)")
     p.set_defaults(func=run_demo)
@@ -100,4 +101,12 @@ def run_demo(args: argparse.Namespace) -> int:
     print(f"\nSITL: flew {scenario.name} for {summary['world_time_s']:.0f} s of world time in "
           f"{summary['wall_time_s']:.1f} s; {sum(summary['sent'].values())} MAVLink messages; "
           f"trajectory with its GNSS outage in {out / 'flight' / 'trajectory.png'}")  # fmt: skip
+    # 8. the as-built aircraft: design-data DEIM against the built aircraft, and a short in-flight calibration
+    #    (2 minutes of manoeuvres, 90 s of each test flight; `vdm-aero calibration-study` runs the full one)
+    from vdm_aero_cli.calibration_study import run_study
+
+    run_study(out / "calibration", n_sensors=12, calibration_minutes=(2.0,), test_duration_s=90.0, grid="quick",
+              seed=0, max_epochs=500)  # fmt: skip
+    print("\nas-built aircraft and in-flight calibration (short run):")
+    print((out / "calibration" / "calibration.md").read_text())
     return 0
