@@ -33,7 +33,6 @@ import math
 import os
 import shutil
 import tempfile
-import uuid
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -45,6 +44,7 @@ import yaml
 from numpy.typing import ArrayLike, DTypeLike, NDArray
 
 from vdm_aero._typing import BoolArray, F64Array, FloatArray, IntArray
+from vdm_aero.atomic import install_directory
 from vdm_aero.coefficients import force_moment_matrix
 from vdm_aero.errors import DatasetError
 
@@ -795,7 +795,7 @@ def write_dataset(path: str | os.PathLike[str], ds_or_fields: Dataset | Mapping[
     try:
         _write_cp(tmp / "cp.npy", ds.cp)
         _write_small_files(tmp, ds)
-        _install(tmp, dest)
+        install_directory(tmp, dest)
     except OSError as exc:
         shutil.rmtree(tmp, ignore_errors=True)
         raise DatasetError(f"{dest}: cannot write data set ({_one_line(exc)})") from exc
@@ -855,24 +855,6 @@ def _make_temp_dir(dest: Path, kind: str) -> Path:
         return Path(tempfile.mkdtemp(prefix=f".{dest.name}.{kind}-", dir=dest.parent))
     except OSError as exc:
         raise DatasetError(f"{dest}: cannot create a temporary directory ({_one_line(exc)})") from exc
-
-
-def _install(tmp: Path, dest: Path) -> None:
-    """Move the finished directory ``tmp`` to ``dest``, replacing an existing ``dest``."""
-    if not (dest.exists() or dest.is_symlink()):
-        os.rename(tmp, dest)
-        return
-    old = dest.parent / f".{dest.name}.old-{uuid.uuid4().hex[:12]}"
-    os.rename(dest, old)
-    try:
-        os.rename(tmp, dest)
-    except OSError:
-        os.rename(old, dest)
-        raise
-    if old.is_dir() and not old.is_symlink():
-        shutil.rmtree(old, ignore_errors=True)
-    else:
-        old.unlink(missing_ok=True)
 
 
 def _native_float_dtype(dtype: np.dtype[Any]) -> np.dtype[Any]:
@@ -1014,7 +996,7 @@ class DatasetMemmapWriter:
             _write_small_files(self._tmp, ds)
             del ds, fields, cp
             self._cp = None  # drop our map of cp.npy before the directory moves
-            _install(self._tmp, self.path)
+            install_directory(self._tmp, self.path)
         except OSError as exc:
             self.abort()
             raise DatasetError(f"{self.path}: cannot write data set ({_one_line(exc)})") from exc

@@ -21,7 +21,6 @@ Writes are atomic (a sibling temporary directory renamed into place).
 
 from __future__ import annotations
 
-import os
 import shutil
 import tempfile
 from collections.abc import Mapping
@@ -33,6 +32,7 @@ import numpy as np
 import yaml
 
 from vdm_aero._typing import F64Array
+from vdm_aero.atomic import install_directory
 from vdm_aero.dataset import to_plain
 from vdm_aero.errors import UserInputError
 
@@ -131,15 +131,9 @@ def write_flight_log(
             np.savez(tmp / "truth.npz", **tarrays)
         doc = {"format": FLIGHTLOG_FORMAT, **dict(meta), "port_names": list(port_names)}
         (tmp / "flight.yaml").write_text(yaml.safe_dump(to_plain(doc), sort_keys=False, allow_unicode=True))
-        if root.exists():
-            if not (root / "flight.yaml").is_file():
-                raise FlightLogError(f"{root}: exists and is not a flight log; refusing to overwrite")
-            old = Path(tempfile.mkdtemp(prefix=f".{root.name}.old.", dir=root.parent))
-            os.rename(root, old / "f")
-            os.rename(tmp, root)
-            shutil.rmtree(old)
-        else:
-            os.rename(tmp, root)
+        if root.exists() and not (root / "flight.yaml").is_file():
+            raise FlightLogError(f"{root}: exists and is not a flight log; refusing to overwrite")
+        install_directory(tmp, root)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import hashlib
 import math
-import os
 import shutil
 import tempfile
 from collections.abc import Mapping
@@ -27,6 +26,7 @@ import numpy as np
 import yaml
 
 from vdm_aero._typing import COEFF_NAMES, F64Array, FloatArray
+from vdm_aero.atomic import install_directory
 from vdm_aero.dataset import Reference, to_plain
 from vdm_aero.errors import ModelError
 from vdm_aero.ports import Port
@@ -342,13 +342,7 @@ def write_model(
             "files": {f.name: sha256_file(f) for f in sorted(tmp.iterdir())},
         }
         (tmp / "model.yaml").write_text(yaml.safe_dump(to_plain(doc), sort_keys=False, allow_unicode=True))
-        if root.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{root.name}.old.", dir=root.parent))
-            os.rename(root, old / "m")
-            os.rename(tmp, root)
-            shutil.rmtree(old)
-        else:
-            os.rename(tmp, root)
+        install_directory(tmp, root)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
