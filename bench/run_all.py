@@ -106,6 +106,26 @@ def bench_discovery_10_cases(repeats: int) -> dict[str, Any]:
     return ten_case_discovery()
 
 
+def bench_nav_speed(repeats: int) -> dict[str, Any]:
+    """The navigation filter alone, per mode, on 120 s of a 400 Hz IMU log; bar: ≥ 50× real time per mode."""
+    from vdm_aero_cli.nav_bench import build_artifacts, filter_speed
+
+    art = build_artifacts(Path("out/bench/nav-artifacts"))
+    return filter_speed(art, seconds=120.0, repeats=max(repeats // 2, 1))
+
+
+def bench_nav_drift(repeats: int) -> dict[str, Any]:
+    """``vdm-aero bench nav-drift`` over every scenario, 20 seeds, 60 and 120 s outages (about 45 min on 2 cores)."""
+    from vdm_aero.nav.filter import MODES
+    from vdm_aero_cli.nav_bench import SCENARIOS, BenchSpec, build_artifacts, run_nav_drift, write_report
+
+    art = build_artifacts(Path("out/bench/nav-artifacts"))
+    spec = BenchSpec(scenarios=tuple(SCENARIOS), seeds=20, outages_s=(60.0, 120.0), modes=tuple(MODES))
+    doc = run_nav_drift(spec, art)
+    write_report(doc, Path("out/bench/nav-drift"))
+    return {"wall_s": doc["wall_s"], "summary": doc["summary"]}
+
+
 BENCHES: dict[str, Callable[[int], dict[str, Any]]] = {
     "simulate-urans": bench_simulate_urans,
     "panel-solve": bench_panel_solve,
@@ -115,6 +135,8 @@ BENCHES: dict[str, Callable[[int], dict[str, Any]]] = {
     "flight-10min": bench_flight_10min,
     "discovery-matrix": bench_discovery_matrix,
     "discovery-10-cases": bench_discovery_10_cases,
+    "nav-speed": bench_nav_speed,
+    "nav-drift": bench_nav_drift,
 }
 
 

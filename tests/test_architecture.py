@@ -82,3 +82,15 @@ def test_one_copy_of_the_shared_constants() -> None:
             text = path.read_text()
             for marker in ("6378137", "101325", "288.15", "def quat_to_dcm", "def euler_zyx"):
                 assert marker not in text, f"{path} has its own copy of {marker}"
+
+
+def test_filterpy_behind_one_adapter() -> None:
+    users = [p for pkg in ("vdm_aero", "sim", "vdm_aero_cli", "firmware_bridge") for p, n in imports_of(pkg).items()
+             if "filterpy" in n]  # fmt: skip
+    assert users == ["vdm_aero/nav/engine.py"], users
+
+
+def test_navigation_knows_nothing_of_the_world() -> None:
+    # no inverse crime: the filter and what it uses never import the simulator (its truth or its parameters)
+    for path, names in _full_imports("vdm_aero/nav").items():
+        assert not [n for n in names if n.split(".")[0] in {"sim", "vdm_aero_cli", "firmware_bridge"}], path

@@ -19,26 +19,19 @@ from sim.flight.record import record_flight, with_model_ports
 from sim.flight.scenario import VEHICLES, load_scenario
 from sim.flight.world import Vehicle
 from vdm_aero.calibrate import TargetSettings, estimate_nuisance, form_targets
-from vdm_aero.dataset import load_dataset
 from vdm_aero.errors import UserInputError
 from vdm_aero.flightlog import FlightLogError, load_sensor_log, load_truth
 from vdm_aero.model import AeroModel
-from vdm_aero.pipeline import fit_model
 from vdm_aero.vehicle import load_vehicle
 from vdm_aero_cli.calibration_study import l2_errors
-from vdm_aero_cli.cmd_data import simulate_to
-from vdm_aero_cli.paper import case_roles
 
 SETTINGS = TargetSettings(rate_hz=10.0)
 
 
 @pytest.fixture(scope="module")
-def study(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+def study(tmp_path_factory: pytest.TempPathFactory, design_deim12: dict[str, Path]) -> dict[str, Path]:
     root = tmp_path_factory.mktemp("calibration")
-    ds_dir = simulate_to("uav-envelope", root / "env", quiet=True)
-    ds = load_dataset(ds_dir)
-    model_dir = root / "deim12"
-    fit_model(ds, model_dir, n_sensors=12, cases=case_roles(ds)["train"])
+    ds_dir, model_dir = design_deim12["data"], design_deim12["model"]
     vehicle = Vehicle.build("uav-2m-asbuilt")
     calib = with_model_ports(load_scenario("calibration-asbuilt"), model_dir)
     test = with_model_ports(load_scenario("asbuilt-survey-test"), model_dir)

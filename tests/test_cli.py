@@ -69,6 +69,10 @@ def test_list_and_print_spec(capsys: pytest.CaptureFixture[str]) -> None:
         (["simulate", "no-such-preset", "--out", "x"], "no-such-preset: no such preset"),
         (["simulate", "--print-spec", "nope"], "nope: no such preset"),
         (["plot-dataset", "/nonexistent/ds", "--out", "x.png"], "/nonexistent/ds"),
+        (["bench", "nav-drift", "--scenario", "bogus"], "--scenario: unknown ['bogus']"),
+        (["bench", "nav-drift", "--modes", "ins,warp"], "--modes: unknown ['warp']"),
+        (["bench", "nav-drift", "--outage-s", "60,x"], "--outage-s: '60,x' is not a list of seconds"),
+        (["bench", "nav-drift", "--models", "/nonexistent/m"], "/nonexistent/m/data/uav-envelope/dataset.yaml missing"),
     ],
 )
 def test_user_errors_are_one_line_exit_2(args: list[str], phrase: str) -> None:

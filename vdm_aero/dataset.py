@@ -78,6 +78,21 @@ _RESERVED_KEYS: Final = ("format", "name", "source", "reference", "cases", "poin
 _REFERENCE_KEYS: Final = ("area_m2", "chord_m", "span_m")
 _CASE_FLOAT_KEYS: Final = ("freq_hz", "alpha0_deg", "amplitude_deg", "speed_m_s")
 
+AIRFRAME_STATE_COLUMNS: Final = (
+    "airspeed_m_s",
+    "alpha_rad",
+    "beta_rad",
+    "p_rad_s",
+    "q_rad_s",
+    "r_rad_s",
+    "alpha_dot_rad_s",
+    "aileron_rad",
+    "elevator_rad",
+    "rudder_rad",
+)
+"""Column order of the flight-state table ``states.npy`` of an airframe data set (docs/formats.md)."""
+STATES_FILE: Final = "states.npy"
+
 
 # --------------------------------------------------------------------------------------------------
 # Value types

@@ -7,7 +7,7 @@ import json
 import statistics
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -19,12 +19,13 @@ from vdm_aero.errors import UserInputError
 def register(sub: Any) -> None:
     p = sub.add_parser(
         "bench",
-        help="benchmarks: aero (run-time latency), deim-select, fit-scale",
+        help="benchmarks: aero (run-time latency), deim-select, fit-scale, nav-drift",
         description="aero: median single-sample latency of the run-time path (10 ports, 4x40 net); "
         "deim-select: DEIM over 300,000 candidates x 15 modes; fit-scale: POD + DEIM on a memory-mapped "
-        "float32 snapshot set of --points x --snapshots (written to a temporary directory first, not timed).",
+        "float32 snapshot set of --points x --snapshots (written to a temporary directory first, not timed); "
+        "nav-drift: GNSS-outage drift of every navigation mode on the as-built aircraft (docs/navigation.md).",
     )
-    p.add_argument("which", choices=("aero", "deim-select", "fit-scale"))
+    p.add_argument("which", choices=("aero", "deim-select", "fit-scale", "nav-drift"))
     p.add_argument("--points", type=int, default=300_000, help="fit-scale: surface points N")
     p.add_argument("--snapshots", type=int, default=2_000, help="fit-scale: snapshots M")
     p.add_argument("--method", choices=("snapshots", "randomized"), default="snapshots", help="fit-scale: POD route")
@@ -34,6 +35,17 @@ def register(sub: Any) -> None:
     p.add_argument("--json", action="store_true", help="print JSON only")
     p.add_argument("--ports", type=int, default=10)
     p.add_argument("--seed", type=int, default=0)
+    n = p.add_argument_group("nav-drift")
+    n.add_argument("--scenario", default="survey", help="comma-separated: survey, wind-shear, loiter, no-airspeed, "
+                   "pitot-blocked, manoeuvring, or all")  # fmt: skip
+    n.add_argument("--seeds", type=int, default=20, help="seeds per scenario")
+    n.add_argument("--outage-s", default="30,60,120,300", help="outage lengths [s], comma-separated")
+    n.add_argument("--modes", default="all", help="comma-separated navigation modes (default all)")
+    n.add_argument("--out", type=Path, default=Path("out/bench/nav-drift"), help="report directory")
+    n.add_argument("--models", type=Path, help="directory with data/uav-envelope and models/ (default: built in --out)")
+    n.add_argument("--calibration-minutes", type=float, default=10.0, help="in-flight calibration length [min]")
+    n.add_argument("--jobs", type=int, help="local worker processes (default: one per core)")
+    n.add_argument("--dask", metavar="ADDRESS", help="run the seeds on a dask.distributed scheduler instead")
     p.set_defaults(func=run_bench)
 
 
@@ -107,7 +119,55 @@ def bench_deim_select(seed: int = 0) -> dict[str, Any]:
     }
 
 
+def _list(text: str, known: Sequence[str], what: str) -> tuple[str, ...]:
+    items = tuple(known) if text == "all" else tuple(x.strip() for x in text.split(",") if x.strip())
+    bad = [x for x in items if x not in known]
+    if bad or not items:
+        raise UserInputError(f"bench nav-drift: --{what}: unknown {bad or text!r} (known: {', '.join(known)}, all)")
+    return items
+
+
+def run_nav_drift_cli(args: argparse.Namespace) -> int:
+    from vdm_aero.nav.filter import MODES
+    from vdm_aero_cli.nav_bench import SCENARIOS, BenchSpec, NavArtifacts, build_artifacts, run_nav_drift, write_report
+    from vdm_aero_cli.progress import progress_bar
+
+    try:
+        outages = tuple(float(x) for x in args.outage_s.split(","))
+    except ValueError:
+        raise UserInputError(f"bench nav-drift: --outage-s: {args.outage_s!r} is not a list of seconds") from None
+    if not outages or min(outages) <= 0.0 or max(outages) > 600.0:
+        raise UserInputError("bench nav-drift: --outage-s: each outage must be in (0, 600] s")
+    if args.seeds < 1:
+        raise UserInputError("bench nav-drift: --seeds must be at least 1")
+    scenarios = _list(args.scenario, list(SCENARIOS), "scenario")
+    modes = _list(args.modes, list(MODES), "modes")
+    spec = BenchSpec(scenarios=scenarios, seeds=args.seeds, outages_s=outages, modes=modes, first_seed=args.seed)
+    root = args.models or args.out
+    if args.models is not None:
+        art = NavArtifacts(root / "data" / "uav-envelope", root / "models" / "deim12",
+                           root / "models" / f"deim12-calibrated-{args.calibration_minutes:g}min")  # fmt: skip
+        for p in (art.dataset_dir / "dataset.yaml", art.deim_dir / "model.yaml", art.nn_dir / "model.yaml"):
+            if not p.is_file():
+                raise UserInputError(f"bench nav-drift: --models: {p} missing (run once without --models to build it)")
+    else:
+        say = None if args.json else (lambda s: print(f"building: {s}", flush=True))
+        art = build_artifacts(root, calibration_minutes=args.calibration_minutes, progress=say)
+    n_units = len(spec.scenarios) * spec.seeds
+    with progress_bar("nav-drift", n_units) as update:
+        doc = run_nav_drift(spec, art, jobs=args.jobs, dask_address=args.dask, progress=update)
+    paths = write_report(doc, args.out)
+    if args.json:
+        print(json.dumps(doc["summary"]))
+    else:
+        print(paths["markdown"].read_text())
+        print(f"report: {paths['markdown']}  json: {paths['json']}  wall {doc['wall_s']:.0f} s")
+    return 0
+
+
 def run_bench(args: argparse.Namespace) -> int:
+    if args.which == "nav-drift":
+        return run_nav_drift_cli(args)
     if args.which == "aero":
         res = bench_aero(args.ports, args.seed)
     elif args.which == "deim-select":

@@ -27,7 +27,7 @@ from sim.airframe.pressure import BLOCK_STATES, AirframePressureModel, ScratchBu
 from sim.airframe.spec import ENVELOPE_VARIABLES, AirframeSpec, EnvelopeMotion, PitchMotion
 from sim.airframe.vlm import STATE_COLUMNS, FlightStates
 from vdm_aero._typing import F64Array, FloatArray
-from vdm_aero.dataset import Case, Dataset, create_dataset_memmap, default_point_names
+from vdm_aero.dataset import STATES_FILE, Case, Dataset, create_dataset_memmap, default_point_names
 from vdm_aero.lag import lag_coefficients
 
 __all__ = [
@@ -42,7 +42,6 @@ __all__ = [
 ]
 
 GENERATOR: Final = "vdm-aero sim.airframe 0.1"
-STATES_FILE: Final = "states.npy"
 _CHUNK_ELEMENTS: Final = 1 << 22  # Cp values per written chunk (32 MiB in float64)
 
 

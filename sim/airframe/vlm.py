@@ -37,6 +37,7 @@ import scipy.linalg
 from sim.airframe.geometry import HTAIL_L, HTAIL_R, WING_L, WING_R, LiftingPart, span_stations
 from vdm_aero._typing import F64Array, IntArray
 from vdm_aero.coefficients import ReferenceLike
+from vdm_aero.dataset import AIRFRAME_STATE_COLUMNS as STATE_COLUMNS
 
 __all__ = [
     "CONTROLS",
@@ -48,19 +49,7 @@ __all__ = [
     "flap_effectiveness",
 ]
 
-STATE_COLUMNS: Final = (
-    "airspeed_m_s",
-    "alpha_rad",
-    "beta_rad",
-    "p_rad_s",
-    "q_rad_s",
-    "r_rad_s",
-    "alpha_dot_rad_s",
-    "aileron_rad",
-    "elevator_rad",
-    "rudder_rad",
-)
-"""Column order of a flight-state table (``states.npy`` of an airframe data set)."""
+# the column order is part of the data-set format (the navigation filter reads states.npy): one definition
 
 CONTROLS: Final = ("aileron", "elevator", "rudder")
 FLAP_VISCOUS_FACTOR: Final = 0.85

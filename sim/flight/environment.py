@@ -87,6 +87,23 @@ class SteadyWind:
         return math.radians(self.from_deg) + math.pi
 
 
+@dataclass(frozen=True)
+class WindShear:
+    """A change of the steady wind: from ``start_s`` it ramps linearly over ``ramp_s`` to ``speed_m_s``
+    FROM ``from_deg`` (a front or a shear layer crossed; ArduPilot PR #23999's case for dead reckoning)."""
+
+    start_s: float
+    ramp_s: float
+    to: SteadyWind
+
+    def wind_ned(self, before: SteadyWind, t_s: float) -> F64Array:
+        """The steady wind NED [m/s] at ``t_s``."""
+        if t_s <= self.start_s:
+            return before.ned_m_s
+        k = min((t_s - self.start_s) / max(self.ramp_s, 1e-9), 1.0)
+        return np.asarray((1.0 - k) * before.ned_m_s + k * self.to.ned_m_s)
+
+
 def _dryden_height_ft(height_m: float) -> float:
     return min(max(height_m / FT_M, _DRYDEN_H_MIN_FT), _DRYDEN_H_MAX_FT)
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any, Final
@@ -20,7 +20,7 @@ import numpy as np
 
 from sim.flight.actuators import ACTUATORS, ActuatorSetSpec
 from sim.flight.asbuilt import AS_BUILT_EFFECTS, AS_BUILT_PRESETS, AsBuiltSpec
-from sim.flight.environment import TURBULENCE_LEVELS, Atmosphere, SteadyWind
+from sim.flight.environment import TURBULENCE_LEVELS, Atmosphere, SteadyWind, WindShear
 from sim.flight.guidance import AUTOPILOT_GAINS, AutopilotGains, LoiterRoute, Route, SurveyRoute, WaypointRoute
 from sim.flight.propulsion import PROPELLERS, PropulsionSpec
 from sim.flight.sensors import (
@@ -237,6 +237,7 @@ class Scenario:
     simulation: SimulationConfig
     as_built_effects: frozenset[str] = frozenset()
     manoeuvres: tuple[Manoeuvre, ...] = ()
+    wind_shear: WindShear | None = None
     origin: str = field(default="<scenario>", compare=False)
 
     @property
@@ -409,6 +410,17 @@ def parse_scenario(data: Any, *, origin: str = "<scenario>") -> Scenario:
     ar.finish()
     wr = r.sub("wind")
     wind = SteadyWind(speed_m_s=wr.num("speed_m_s", lo=0.0, hi=20.0), from_deg=wr.num("from_deg", lo=-360.0, hi=360.0))
+    shear = None
+    if wr.has("shear"):
+        sr = wr.sub("shear")
+        shear = WindShear(
+            start_s=sr.num("start_s", lo=0.0),
+            ramp_s=sr.num("ramp_s", lo=0.0, hi=600.0),
+            to=SteadyWind(
+                speed_m_s=sr.num("speed_m_s", lo=0.0, hi=20.0), from_deg=sr.num("from_deg", lo=-360.0, hi=360.0)
+            ),
+        )
+        sr.finish()
     wr.finish()
     tr = r.sub("turbulence")
     turbulence = tr.choice("level", TURBULENCE_LEVELS)
@@ -484,6 +496,9 @@ def parse_scenario(data: Any, *, origin: str = "<scenario>") -> Scenario:
     elif r.has("as_built_effects"):
         raise r.fail("as_built_effects", f"vehicle {vehicle.name} is a design, not an as-built aircraft")
     manoeuvres = _parse_manoeuvres(r, duration) if r.has("manoeuvres") else ()
+    if r.has("max_bank_deg"):  # the autopilot's bank limit (ArduPlane ROLL_LIMIT_DEG) for manoeuvring flight
+        bank = math.radians(r.num("max_bank_deg", lo=10.0, hi=60.0))
+        vehicle = replace(vehicle, gains=replace(vehicle.gains, max_bank_rad=bank))
 
     scenario = Scenario(
         name=r.text("name"),
@@ -509,6 +524,7 @@ def parse_scenario(data: Any, *, origin: str = "<scenario>") -> Scenario:
         simulation=sim,
         as_built_effects=effects,
         manoeuvres=manoeuvres,
+        wind_shear=shear,
         origin=origin,
     )
     r.finish()

@@ -564,6 +564,8 @@ class FlightWorld:
         gust = self.turbulence.step(dt, self._aux.airspeed, max(height, 0.0))
         ug, vg, wg = gust
         c, s = math.cos(self._turb_heading), math.sin(self._turb_heading)
+        if (shear := self.scenario.wind_shear) is not None:
+            self._wind_steady = shear.wind_ned(self.scenario.wind, t)
         ws = self._wind_steady
         self._wind = (float(ws[0]) + c * ug - s * vg, float(ws[1]) + s * ug + c * vg, float(ws[2]) + wg)
         alt = self.home_alt_m + height

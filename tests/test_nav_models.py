@@ -1,0 +1,138 @@
+"""Navigation contracts: analytic Jacobians against finite differences, ⊕/⊖, the INS transition, gating."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from vdm_aero.nav.contracts import ImuIncrement, jacobian_fd
+from vdm_aero.nav.engine import EkfEngine
+from vdm_aero.nav.ins import InsProcess
+from vdm_aero.nav.measurements import (
+    BaroAltitude,
+    ClassicForce,
+    ForceContext,
+    GnssPosition,
+    GnssVelocity,
+    MagField,
+    PitotAirspeed,
+    PortAirData,
+    PortForce,
+    SyntheticSideslip,
+)
+from vdm_aero.nav.state import AERO_PARAMS, N_ERR, NavState
+from vdm_aero.rotation import dcm_from_quat, quat_from_euler
+
+JACOBIAN_RTOL = 1e-5  # relative to the Jacobian's largest entry: central differences at step 1e-6
+
+
+def _state(rng: np.random.Generator) -> NavState:
+    q = np.array(quat_from_euler(*rng.uniform([-0.6, -0.3, -math.pi], [0.6, 0.3, math.pi])))
+    v_ned = dcm_from_quat(q) @ np.array([18.0, 1.0, 1.5]) + rng.normal(0.0, 4.0, 3) * [1, 1, 0.1]
+    x = NavState(rng.normal(0.0, 100.0, 3), v_ned, q)
+    x.wind_ned = v_ned - dcm_from_quat(q) @ (np.array([17.0, 1.2, 1.6]) + rng.normal(0, 0.5, 3))
+    x.b_gyro_b = rng.normal(0.0, 0.01, 3)
+    x.b_accel_b = rng.normal(0.0, 0.1, 3)
+    x.b_mag_b_ut = rng.normal(0.0, 3.0, 3)
+    x.b_baro_m = float(rng.normal(0.0, 3.0))
+    x.b_gnss_ned = rng.normal(0.0, 1.0, 3)
+    x.aero = np.array([0.01, -0.01, 1.03, 0.004, 0.95, 0.9]) + rng.normal(0.0, 0.01, len(AERO_PARAMS))
+    return x
+
+
+class _Derivs:
+    """A smooth stand-in for the fitted derivatives (the test is of the chain rule, not of the fit)."""
+
+    def coeffs_and_gradient(self, speed, alpha, beta, omega_b, controls):  # type: ignore[no-untyped-def]
+        c = np.array(
+            [-0.03 - 0.5 * alpha**2 + 0.01 * omega_b[1] / speed, -0.3 * beta, -0.3 - 4.8 * alpha + 2 * alpha**3]
+        )
+        g = np.array(
+            [[-0.01 * omega_b[1] / speed**2, -1.0 * alpha, 0.0], [0.0, 0.0, -0.3], [0.0, -4.8 + 6 * alpha**2, 0.0]]
+        )
+        return c, g
+
+
+CTX = ForceContext(rho_kg_m3=1.15, area_per_mass_m2_kg=0.39 / 2.5, mass_kg=2.5, thrust_a_n=8.0, thrust_b_n_s_m=-0.2)
+MODELS = [
+    GnssPosition(0.7, 1.0),
+    GnssVelocity(0.2),
+    BaroAltitude(50.0, 1.0),
+    MagField(np.array([20.1, -4.9, 46.5]), 1.5),
+    PitotAirspeed(0.8),
+    SyntheticSideslip(0.1),
+    PortAirData(np.eye(3)),
+    PortForce(np.array([-0.04, 0.01, -0.45]), CTX, np.ones(3)),
+    ClassicForce(_Derivs(), np.array([0.1, -0.2, 0.05]), np.zeros(3), CTX, np.ones(3)),
+]
+
+
+@pytest.mark.parametrize("model", MODELS, ids=lambda m: m.name)
+def test_measurement_jacobians_match_finite_differences(model) -> None:  # type: ignore[no-untyped-def]
+    rng = np.random.default_rng(7)
+    for _ in range(5):
+        x = _state(rng)
+        analytic = model.jacobian(x)
+        numeric = jacobian_fd(model, x)
+        assert analytic.shape == (len(model.evaluate(x)), N_ERR)
+        scale = max(float(np.abs(numeric).max()), 1e-9)
+        worst = np.unravel_index(np.argmax(np.abs(analytic - numeric)), analytic.shape)
+        assert np.abs(analytic - numeric).max() <= JACOBIAN_RTOL * scale, f"{model.name}: worst entry {worst}"
+
+
+def test_plus_minus_round_trip() -> None:
+    rng = np.random.default_rng(3)
+    x = _state(rng)
+    dx = rng.normal(0.0, 0.05, N_ERR)
+    np.testing.assert_allclose(x.plus(dx).minus(x), dx, atol=1e-12)
+
+
+def test_ins_transition_matches_finite_differences() -> None:
+    # Φ predicts how an error at the start of a step shows at its end: compare with propagating x ⊕ δx
+    rng = np.random.default_rng(11)
+    ins = InsProcess()
+    x = _state(rng)
+    u = ImuIncrement(np.array([0.2, -0.1, 0.3]) * 0.02, np.array([1.0, 0.5, -9.5]) * 0.02, 0.02)
+    phi = ins.transition(x, u)
+    base = ins.propagate(x, u)
+    for i in range(N_ERR):
+        d = np.zeros(N_ERR)
+        d[i] = 1e-6
+        col = (ins.propagate(x.plus(d), u).minus(base) - ins.propagate(x.plus(-d), u).minus(base)) / 2e-6
+        # first-order-hold Φ: exact to O(Δt³); the INS terms are ~1, the step 0.02 s
+        np.testing.assert_allclose(phi[:, i], col, atol=2e-5, err_msg=f"column {i}")
+
+
+def test_gate_rejects_a_300_m_jump_and_accepts_a_normal_fix() -> None:
+    p0 = np.diag(np.full(N_ERR, 1.0))
+    eng = EkfEngine(p0)
+    h = np.zeros((3, N_ERR))
+    h[:, :3] = np.eye(3)
+    r = np.eye(3) * 0.5
+    dx, res = eng.update(np.array([300.0, 0.0, 0.0]), h, r, 21.11)
+    assert not res.accepted and res.nis > 1e4 and not dx.any()
+    assert np.allclose(eng.P, p0)  # a rejected update leaves the covariance alone
+    dx, res = eng.update(np.array([1.0, -0.5, 0.3]), h, r, 21.11)
+    assert res.accepted and res.nis < 21.11
+    np.testing.assert_allclose(dx[:3], np.array([1.0, -0.5, 0.3]) / 1.5, rtol=1e-12)  # K = P/(P+R)
+
+
+def test_consider_update_keeps_considered_states_and_their_covariance_consistent() -> None:
+    rng = np.random.default_rng(5)
+    a = rng.normal(size=(N_ERR, N_ERR))
+    p0 = a @ a.T + N_ERR * np.eye(N_ERR)
+    consider = np.zeros(N_ERR, dtype=bool)
+    consider[15:18] = True
+    h = rng.normal(size=(2, N_ERR))
+    r = np.eye(2)
+    y = np.array([0.3, -0.2])
+    eng = EkfEngine(p0)
+    dx, res = eng.update(y, h, r, 1e9, consider)
+    assert res.accepted and not dx[consider].any() and dx[~consider].any()
+    # Schmidt: P+ = (I−KH)P(I−KH)ᵀ + KRKᵀ with the considered gain rows zero; the considered block is unchanged
+    np.testing.assert_allclose(eng.P[15:18, 15:18], p0[15:18, 15:18], rtol=1e-12)
+    assert np.all(np.linalg.eigvalsh(eng.P) > 0.0)
+    # and no larger than the prior anywhere on the diagonal
+    assert np.all(np.diag(eng.P) <= np.diag(p0) + 1e-12)

@@ -1,0 +1,441 @@
+"""The navigation filter: modes, delayed GNSS, gating, outages, fallback and health.
+
+One :class:`NavFilter` per mode; every mode reads the same measurement stream (:mod:`vdm_aero.nav.stream`
+for logs, the service for live MAVLink). Calls must come in time order; each takes its time of validity.
+
+* **Delayed GNSS.** A fix arrives after its time of validity. The filter keeps a one-second buffer of its
+  nominal position and velocity at every step; the innovation is formed against the buffered state at the
+  fix's time of validity and the correction is applied to the current state (Larsen's approximation of
+  fusing at the time of validity: exact while Φ ≈ I over the delay; EKF2 instead delays its whole filter
+  horizon and runs an output predictor).
+* **Gating.** Every update is NIS-gated at the χ² 99.99 % point of its dimension (:data:`GATE_CHI2`).
+  GNSS position rejected for :data:`GNSS_RESET_S` seconds in a row while its velocity is accepted resets
+  the position to the fix (counted). So does the first fix after an outage when the gate rejects it: the
+  dead-reckoned position has drifted beyond its own uncertainty, and the fix wins (EKF2/EKF3 reset to
+  GNSS on reacquisition after dead reckoning).
+* **Outage.** No GNSS fix for :data:`GNSS_TIMEOUT_S` s: the wind, the magnetometer and baro offsets and the
+  model parameters become *considered* states (estimated with GNSS, held without it).
+* **Fallback.** A port mode whose ports give no air data (all lost) fuses the pitot and synthetic
+  sideslip instead (airspeed dead reckoning) and says so in :meth:`NavFilter.health`.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any, Final
+
+import numpy as np
+
+from vdm_aero._typing import BoolArray, F64Array
+from vdm_aero.atmosphere import density_kg_m3, pressure_altitude_m
+from vdm_aero.nav.contracts import ImuIncrement, Measurement
+from vdm_aero.nav.design_fit import StabilityDerivatives
+from vdm_aero.nav.engine import EkfEngine, UpdateResult
+from vdm_aero.nav.ins import InsProcess, ProcessNoise
+from vdm_aero.nav.measurements import (
+    BaroAltitude,
+    ClassicForce,
+    ForceContext,
+    GnssPosition,
+    GnssVelocity,
+    MagField,
+    PitotAirspeed,
+    PortAirData,
+    PortForce,
+    SyntheticSideslip,
+)
+from vdm_aero.nav.ports_frontend import PortFrame
+from vdm_aero.nav.state import AERO_PARAMS, AERO_PRIOR, IDX, N_ERR, NavState
+from vdm_aero.rotation import dcm_from_quat, quat_from_euler
+from vdm_aero.vehicle import VehicleDescription
+
+__all__ = ["GATE_CHI2", "MODES", "ModeSpec", "NavConfig", "NavFilter"]
+
+GATE_CHI2: Final = {1: 15.14, 2: 18.42, 3: 21.11, 6: 27.86}
+"""χ² 99.99 % points by measurement dimension (scipy.stats.chi2.ppf(0.9999, k))."""
+GNSS_TIMEOUT_S: Final = 1.0
+GNSS_RESET_S: Final = 10.0
+BUFFER_S: Final = 1.0
+
+
+@dataclass(frozen=True)
+class ModeSpec:
+    """What a mode fuses besides IMU, GNSS, barometer and magnetometer."""
+
+    pitot: bool = False
+    sideslip: bool = False
+    ports_airdata: bool = False
+    force: str | None = None  # "classic" or the name of a port aero model ("deim", "deim-nn")
+    description: str = ""
+
+
+MODES: Final = {
+    "ins": ModeSpec(description="IMU + baro + mag in the outage (no air data)"),
+    "airspeed-dr": ModeSpec(
+        pitot=True, sideslip=True, description="EKF3-like: pitot TAS + synthetic β = 0 + held wind"
+    ),
+    "ports-airdata": ModeSpec(ports_airdata=True, description="V, α, β from the ports (FADS), no force model"),
+    "vdm-classic": ModeSpec(pitot=True, force="classic", description="pitot + polynomial stability derivatives"),
+    "vdm-deim": ModeSpec(ports_airdata=True, force="deim", description="port air data + the DEIM force model"),
+    "vdm-deim-nn": ModeSpec(ports_airdata=True, force="deim-nn", description="port air data + DEIM + calibrated net"),
+}
+
+
+@dataclass(frozen=True)
+class NavConfig:
+    """Everything a filter needs that is not a measurement (all from the user: nominal vehicle, WMM field
+    at the site, sensor data sheets). Standard deviations in SI units (magnetometer µT)."""
+
+    vehicle: VehicleDescription
+    origin_alt_m: float
+    mag_field_ned_ut: F64Array
+    noise: ProcessNoise = field(default_factory=ProcessNoise)
+    filter_rate_hz: float = 50.0
+    aiding_rate_hz: float = 10.0
+    gnss_latency_s: float = 0.1
+    gnss_pos_sigma_ne_m: float = 0.7
+    gnss_pos_sigma_d_m: float = 1.0
+    gnss_vel_sigma_m_s: float = 0.2
+    baro_sigma_m: float = 1.0
+    mag_sigma_ut: float = 1.5
+    pitot_sigma_m_s: float = 0.8
+    sideslip_sigma: float = 0.1
+    force_sigma_m_s2: tuple[float, float, float] = (0.4, 0.4, 1.2)
+    classic_force_sigma_m_s2: tuple[float, float, float] = (0.6, 0.6, 2.0)
+    airdata_sigma_floor: tuple[float, float, float] = (0.5, 0.02, 0.02)  # turbulence and lag: V, α, β
+
+
+@dataclass
+class _Inputs:
+    """The latest side information: body rates, specific force, servo state, air density."""
+
+    omega_b: F64Array = field(default_factory=lambda: np.zeros(3))
+    f_b: F64Array = field(default_factory=lambda: np.array([0.0, 0.0, -9.80665]))
+    controls_rad: F64Array = field(default_factory=lambda: np.zeros(3))
+    throttle: float = 0.0
+    rho_kg_m3: float = 1.225
+    temperature_k: float = 288.15
+
+
+class AdaptiveNoise:
+    """Innovation-based measurement-noise adaptation (covariance matching, Mohamed & Schwarz 1999):
+    R = max(R₀, E[yyᵀ] − HPHᵀ) on the diagonal, the expectations as exponential averages over
+    ``time_constant`` updates. Used for the model-based measurements (aerodynamic force, port air data),
+    whose error on the built aircraft no data sheet states; it adapts only while GNSS aids the filter
+    (during an outage the innovations no longer separate model error from drift) and is then held."""
+
+    def __init__(self, time_constant: float = 300.0) -> None:
+        self.k = 1.0 / time_constant
+        self._yy: dict[str, F64Array] = {}
+        self._hph: dict[str, F64Array] = {}
+
+    def observe(self, name: str, y: F64Array, hph_diag: F64Array) -> None:
+        if name not in self._yy:
+            self._yy[name], self._hph[name] = y * y, hph_diag.copy()
+            return
+        self._yy[name] += self.k * (y * y - self._yy[name])
+        self._hph[name] += self.k * (hph_diag - self._hph[name])
+
+    def covariance(self, name: str, r0: F64Array) -> F64Array:
+        if name not in self._yy:
+            return r0
+        d = np.maximum(np.diag(r0), self._yy[name] - self._hph[name])
+        out = r0.copy()
+        out[np.diag_indices_from(out)] = d
+        return out
+
+
+class NavFilter:
+    """The VDM navigation filter in one mode (module docstring)."""
+
+    def __init__(self, mode: str, config: NavConfig, derivatives: StabilityDerivatives | None = None) -> None:
+        if mode not in MODES:
+            raise ValueError(f"unknown navigation mode {mode!r}; known: {', '.join(MODES)}")
+        self.mode = mode
+        self.spec = MODES[mode]
+        if self.spec.force == "classic" and derivatives is None:
+            raise ValueError("vdm-classic needs the stability derivatives of the design data set")
+        self.config = config
+        self.derivatives = derivatives
+        self.process = InsProcess(config.noise)
+        self.x: NavState | None = None
+        self.engine: EkfEngine | None = None
+        self.t_s = math.nan
+        self.inputs = _Inputs()
+        self._buffer: deque[tuple[float, F64Array, F64Array]] = deque(maxlen=round(BUFFER_S * config.filter_rate_hz))
+        self._last_gnss_s = -math.inf
+        self._pos_rejected_since: float | None = None
+        self._next_aid: dict[str, float] = {}
+        self._consider = np.zeros(N_ERR, dtype=bool)
+        for k in ("wind", "bm", "baro", "gnss", "aero"):
+            self._consider[IDX[k]] = True
+        self.fallback = False
+        self.port_health = (0, 0)
+        self.counts: dict[str, int] = {}
+        self.rejected: dict[str, int] = {}
+        self.nis: dict[str, list[float]] = {}
+        self.adaptive = AdaptiveNoise()
+        m = config.vehicle.mass.mass_kg
+        self._area_per_mass = config.vehicle.reference.area_m2 / m
+
+    def __deepcopy__(self, memo: dict[int, Any]) -> NavFilter:
+        """A branch: its own state, covariance and counters; the same configuration and models."""
+        out = copy.copy(self)
+        out.x = None if self.x is None else self.x.copy()
+        out.engine = copy.deepcopy(self.engine, memo)
+        out.inputs = copy.deepcopy(self.inputs, memo)
+        out._buffer = copy.deepcopy(self._buffer, memo)
+        out._next_aid = dict(self._next_aid)
+        out.counts, out.rejected = dict(self.counts), dict(self.rejected)
+        out.nis = {k: list(v) for k, v in self.nis.items()}
+        out.adaptive = copy.deepcopy(self.adaptive, memo)
+        return out
+
+    # ------------------------------------------------------------------------------------- status
+    @property
+    def initialised(self) -> bool:
+        return self.x is not None
+
+    @property
+    def in_outage(self) -> bool:
+        return self.t_s - self._last_gnss_s > GNSS_TIMEOUT_S
+
+    @property
+    def P(self) -> F64Array:
+        assert self.engine is not None
+        return self.engine.P
+
+    def horizontal_sigma_m(self) -> float:
+        """1σ horizontal position uncertainty: √(largest eigenvalue of the NE covariance) [m]."""
+        p = self.P[0:2, 0:2]
+        return float(math.sqrt(max(np.linalg.eigvalsh(p)[-1], 0.0)))
+
+    def health(self) -> dict[str, Any]:
+        """Mode, aiding state and counters (the service's status line; the benchmark's report)."""
+        return {
+            "mode": self.mode,
+            "initialised": self.initialised,
+            "gnss": "outage" if self.in_outage else "aided",
+            "fallback": "airspeed-dr (no port air data)" if self.fallback else None,
+            "ports_ok": self.port_health[0],
+            "ports": self.port_health[1],
+            "horizontal_sigma_m": self.horizontal_sigma_m() if self.initialised else math.nan,
+            "updates": dict(self.counts),
+            "rejected": dict(self.rejected),
+        }
+
+    # -------------------------------------------------------------------------------- initialise
+    def initialise(
+        self, t_s: float, p_ned: F64Array, v_ned: F64Array, f_b: F64Array, mag_b_ut: F64Array | None
+    ) -> None:
+        """Start from a GNSS fix in straight flight: roll and pitch from the specific force (f ≈ −C_bn·g),
+        heading from the magnetometer (tilt-compensated) or, without one, the GNSS course."""
+        g = float(np.linalg.norm(f_b))
+        pitch = math.asin(max(-1.0, min(1.0, float(f_b[0]) / g)))
+        roll = math.atan2(-float(f_b[1]), -float(f_b[2]))
+        yaw = math.atan2(float(v_ned[1]), float(v_ned[0]))
+        if mag_b_ut is not None:
+            c_nb0 = dcm_from_quat(quat_from_euler(roll, pitch, 0.0))
+            m_lvl = c_nb0 @ mag_b_ut  # the body field levelled (yaw still unknown)
+            ref = self.config.mag_field_ned_ut
+            yaw = math.atan2(float(ref[1]), float(ref[0])) - math.atan2(float(m_lvl[1]), float(m_lvl[0]))
+        q = np.array(quat_from_euler(roll, pitch, yaw))
+        self.x = NavState(np.array(p_ned, dtype=float), np.array(v_ned, dtype=float), q)
+        sig = np.zeros(N_ERR)
+        sig[IDX["p"]] = (3.0, 3.0, 5.0)
+        sig[IDX["v"]] = 0.5
+        sig[IDX["theta"]] = (math.radians(4.0), math.radians(4.0), math.radians(15.0))
+        sig[IDX["bg"]] = math.radians(0.6)
+        sig[IDX["ba"]] = 0.25
+        sig[IDX["wind"]] = (6.0, 6.0, 0.5)
+        sig[IDX["bm"]] = 6.0
+        sig[IDX["baro"]] = 10.0
+        n = self.config.noise
+        sig[IDX["gnss"]] = (n.gnss_sigma_ne_m, n.gnss_sigma_ne_m, n.gnss_sigma_d_m)
+        sig[IDX["gust"]] = n.gust_sigma_m_s
+        sig[IDX["aero"]] = [AERO_PRIOR[k][1] for k in AERO_PARAMS]
+        self.engine = EkfEngine(np.diag(sig**2))
+        self.t_s = t_s
+        self._last_gnss_s = t_s
+
+    # ------------------------------------------------------------------------------------ predict
+    def imu(self, t_s: float, inc: ImuIncrement, temperature_c: float | None = None) -> None:
+        """One IMU increment ending at ``t_s``."""
+        self.inputs.omega_b = inc.dtheta_b / inc.dt_s
+        self.inputs.f_b = inc.dvel_b / inc.dt_s
+        if temperature_c is not None:
+            self.inputs.temperature_k = temperature_c + 273.15
+        if self.x is None or self.engine is None:
+            return
+        x = self.x
+        phi = self.process.transition(x, inc)
+        qd = self.process.noise(x, inc)
+        self.process.propagate_inplace(x, inc)
+        self.engine.predict(phi, qd)
+        self.t_s = t_s
+        self._buffer.append((t_s, x.p_ned.copy(), x.v_ned.copy()))
+        self._model_aiding(t_s)
+
+    def _model_aiding(self, t_s: float) -> None:
+        """The aiding that needs no sensor sample: synthetic sideslip and the state-based force model."""
+        if (self.spec.sideslip or self.fallback) and self._due("sideslip", t_s):
+            self._fuse(Measurement(t_s, np.zeros(1), SyntheticSideslip(self.config.sideslip_sigma)))
+        if self.spec.force == "classic" and self._due("classic", t_s):
+            self._fuse(Measurement(t_s, self.inputs.f_b.copy(), self._classic_force()), adaptive=True)
+
+    # ------------------------------------------------------------------------------------- update
+    def _due(self, key: str, t_s: float) -> bool:
+        if t_s < self._next_aid.get(key, -math.inf):
+            return False
+        self._next_aid[key] = t_s + 1.0 / self.config.aiding_rate_hz - 1e-6
+        return True
+
+    def _fuse(
+        self,
+        meas: Measurement,
+        state: NavState | None = None,
+        consider: BoolArray | None = None,
+        adaptive: bool = False,
+    ) -> UpdateResult:
+        """Fuse one measurement (its innovation against ``state`` when given: the delayed-fusion path;
+        ``adaptive``: its noise from :class:`AdaptiveNoise`)."""
+        assert self.x is not None and self.engine is not None
+        model = meas.model
+        y = meas.z - model.evaluate(state if state is not None else self.x)
+        h = model.jacobian(self.x)
+        dim = len(y)
+        gate = GATE_CHI2.get(dim, float(dim + 6.0 * math.sqrt(2.0 * dim)))
+        if consider is None and self.in_outage:
+            consider = self._consider
+        r = model.covariance()
+        if adaptive:
+            if not self.in_outage:
+                self.adaptive.observe(model.name, y, np.einsum("ij,jk,ik->i", h, self.engine.P, h))
+            r = self.adaptive.covariance(model.name, r)
+        dx, res = self.engine.update(y, h, r, gate, consider)
+        name = model.name
+        self.nis.setdefault(name, []).append(res.nis)
+        if res.accepted:
+            self.x.plus_inplace(dx)
+            self.counts[name] = self.counts.get(name, 0) + 1
+        else:
+            self.rejected[name] = self.rejected.get(name, 0) + 1
+        return res
+
+    def gnss(self, t_valid_s: float, t_s: float, p_ned: F64Array, v_ned: F64Array) -> None:
+        """A GNSS fix valid at ``t_valid_s`` that arrived at ``t_s`` (local NED position [m], velocity)."""
+        if self.x is None:
+            return
+        c = self.config
+        was_outage = self.in_outage
+        past = self._buffered(t_valid_s)
+        vel = self._fuse(Measurement(t_valid_s, np.asarray(v_ned, float), GnssVelocity(c.gnss_vel_sigma_m_s)), past)
+        pos = self._fuse(
+            Measurement(t_valid_s, np.asarray(p_ned, float), GnssPosition(c.gnss_pos_sigma_ne_m, c.gnss_pos_sigma_d_m)),
+            past,
+            consider=np.zeros(N_ERR, dtype=bool),
+        )
+        if pos.accepted:
+            self._pos_rejected_since = None
+        elif was_outage:  # reacquisition after an outage: the fix wins over the dead-reckoned position
+            self._reset_position(np.asarray(p_ned, float))
+        elif vel.accepted:
+            if self._pos_rejected_since is None:
+                self._pos_rejected_since = t_s
+            elif t_s - self._pos_rejected_since > GNSS_RESET_S:
+                self._reset_position(np.asarray(p_ned, float))
+        self._last_gnss_s = t_s
+
+    def _reset_position(self, p_ned: F64Array) -> None:
+        assert self.x is not None and self.engine is not None
+        self.x.p_ned = p_ned - self.x.b_gnss_ned
+        p = self.engine.P
+        i = IDX["p"]
+        p[i, :] = 0.0
+        p[:, i] = 0.0
+        p[i, i] = np.diag([self.config.gnss_pos_sigma_ne_m**2] * 2 + [self.config.gnss_pos_sigma_d_m**2])
+        self.engine.P = p
+        self.counts["gnss_position_reset"] = self.counts.get("gnss_position_reset", 0) + 1
+        self._pos_rejected_since = None
+
+    def _buffered(self, t_valid_s: float) -> NavState | None:
+        """The state at a past time of validity (position and velocity from the buffer), None if current."""
+        assert self.x is not None
+        if not self._buffer or t_valid_s >= self._buffer[-1][0] - 1e-9:
+            return None
+        times = [b[0] for b in self._buffer]
+        i = int(np.argmin(np.abs(np.asarray(times) - t_valid_s)))
+        past = self.x.copy()
+        past.p_ned, past.v_ned = self._buffer[i][1].copy(), self._buffer[i][2].copy()
+        return past
+
+    def baro(self, t_s: float, pressure_pa: float) -> None:
+        """Static pressure [Pa]: the altitude measurement and the air density (with the IMU temperature)."""
+        self.inputs.rho_kg_m3 = float(density_kg_m3(pressure_pa, self.inputs.temperature_k))
+        if self.x is None or not self._due("baro", t_s):
+            return
+        z = np.array([float(pressure_altitude_m(pressure_pa))])
+        if not self.counts.get("baro") and not self.rejected.get("baro"):
+            self.x.b_baro_m = float(z[0]) - (self.config.origin_alt_m - float(self.x.p_ned[2]))
+        self._fuse(Measurement(t_s, z, BaroAltitude(self.config.origin_alt_m, self.config.baro_sigma_m)))
+
+    def mag(self, t_s: float, field_b_ut: F64Array) -> None:
+        if self.x is None or not self._due("mag", t_s):
+            return
+        self._fuse(
+            Measurement(
+                t_s, np.asarray(field_b_ut, float), MagField(self.config.mag_field_ned_ut, self.config.mag_sigma_ut)
+            )
+        )
+
+    def servo(self, t_s: float, controls_rad: F64Array, throttle: float) -> None:
+        self.inputs.controls_rad = np.asarray(controls_rad, float)
+        self.inputs.throttle = throttle
+
+    def pitot(self, t_s: float, dp_pa: float) -> None:
+        """Pitot differential pressure [Pa] (fused by the pitot modes, and by port modes in fallback)."""
+        if self.x is None or not (self.spec.pitot or self.fallback) or not math.isfinite(dp_pa):
+            return
+        if not self._due("pitot", t_s):
+            return
+        tas = math.sqrt(2.0 * max(dp_pa, 0.0) / self.inputs.rho_kg_m3)
+        if tas < 8.0:  # below the pitot's useful range (and on the ground)
+            return
+        self._fuse(Measurement(t_s, np.array([tas]), PitotAirspeed(self.config.pitot_sigma_m_s)))
+
+    def _ctx(self) -> ForceContext:
+        prop = self.config.vehicle.propulsion
+        a, b = prop.thrust_regressors(self.inputs.throttle, 1.0, self.inputs.rho_kg_m3)
+        return ForceContext(
+            self.inputs.rho_kg_m3, self._area_per_mass, self.config.vehicle.mass.mass_kg, float(a), float(b)
+        )
+
+    def _classic_force(self) -> ClassicForce:
+        assert self.derivatives is not None
+        c = self.config
+        return ClassicForce(self.derivatives, self.inputs.omega_b.copy(), self.inputs.controls_rad.copy(), self._ctx(),
+                            np.asarray(c.classic_force_sigma_m_s2))  # fmt: skip
+
+    def ports(self, frame: PortFrame) -> None:
+        """A processed port frame (:class:`~vdm_aero.nav.ports_frontend.PortFrame`)."""
+        self.port_health = (frame.n_ok, len(frame.ok))
+        uses_ports = self.spec.ports_airdata or (self.spec.force not in (None, "classic"))
+        if not uses_ports:
+            return
+        self.fallback = frame.airdata is None
+        if self.x is None or frame.airdata is None or not self._due("ports", frame.t_s):
+            return
+        c = self.config
+        if self.spec.ports_airdata:
+            assert frame.airdata_cov is not None
+            cov = frame.airdata_cov + np.diag(np.square(c.airdata_sigma_floor))
+            self._fuse(Measurement(frame.t_s, frame.airdata, PortAirData(cov)), adaptive=True)
+        if self.spec.force is not None and self.spec.force in frame.coeffs:
+            coeffs = frame.coeffs[self.spec.force][:3]
+            sig = np.asarray(c.force_sigma_m_s2) * math.sqrt(frame.inflation)
+            self._fuse(
+                Measurement(frame.t_s, self.inputs.f_b.copy(), PortForce(coeffs, self._ctx(), sig)), adaptive=True
+            )

@@ -1,0 +1,132 @@
+"""The process model: strapdown INS mechanisation driven by IMU increments (the IMU is the input).
+
+Why the IMU drives the process instead of being an observation of a dynamic-model process (Khaghani &
+Skaloud): the IMU is the one sensor that is always there, at hundreds of hertz, with a well-known error
+model; the aerodynamic model is uncertain (the as-built aircraft is not the design) and enters as a
+measurement whose noise states that uncertainty. A dynamic-model process would put that model error into
+the process noise of every step and needs thrust, moments and inertia exactly; measured on the survey
+benchmark (docs/navigation.md) the mechanisation at 50 Hz also costs a fraction of a dynamic-model step.
+
+Flat, non-rotating Earth about the local origin: over an outage of minutes and kilometres the neglected
+terms (Earth rate 7.3e-5 rad/s, transport rate, gravity change) are far below the MEMS errors; the gyro
+bias state absorbs the Earth rate.
+
+Error-state dynamics (body-frame attitude error, q = q̂ ⊗ exp(δθ)):
+  δṗ = δv,  δv̇ = −Ĉ[f̂×]δθ − Ĉδb_a − Ĉn_a,  δθ̇ = −[ω̂×]δθ − δb_g − n_g,
+  biases, wind, magnetometer and baro offsets and aero parameters: random walks; the GNSS position error:
+  first-order Gauss–Markov.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from vdm_aero._typing import F64Array
+from vdm_aero.atmosphere import G0_M_S2
+from vdm_aero.nav.contracts import ImuIncrement
+from vdm_aero.nav.state import IDX, N_ERR, NavState
+from vdm_aero.rotation import dcm_from_quat, quat_exp, quat_multiply
+
+__all__ = ["InsProcess", "ProcessNoise", "skew"]
+
+
+def skew(v: F64Array) -> F64Array:
+    """[v×]: skew(v) @ u = v × u."""
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+@dataclass(frozen=True)
+class ProcessNoise:
+    """Continuous-time noise densities (per √s) of the error-state random walks.
+
+    accel: ICM-42688-P 70 µg/√Hz ×2 for motor vibration, raised to 0.01 m/s²/√s for coning/sculling of the
+    50 Hz increments and the unmodelled lever arm; gyro: 2.8 mdps/√Hz raised likewise; bias random walks:
+    the datasheet temperature drift over minutes; wind: the drift of the mean wind (turbulence itself is
+    measurement noise of the air data); aero parameters: slow (they change with configuration, not with time).
+    """
+
+    accel_m_s2: float = 0.01
+    gyro_rad_s: float = 8.0e-4
+    accel_bias_m_s3: float = 2.0e-4
+    gyro_bias_rad_s2: float = 5.0e-6
+    wind_horizontal_m_s2: float = 0.05
+    wind_vertical_m_s2: float = 0.01
+    mag_bias_ut_s: float = 0.005
+    baro_m_s: float = 0.02
+    aero_per_s: tuple[float, ...] = (1e-5, 1e-5, 1e-5, 2e-5, 1e-4, 1e-4)
+    # single-frequency GNSS: metre-level errors (ionosphere, multipath) correlated over minutes; a user
+    # knows the receiver's accuracy class, not these numbers exactly (u-blox M9: 1.5 m CEP)
+    gnss_sigma_ne_m: float = 1.5
+    gnss_sigma_d_m: float = 2.5
+    gnss_tau_s: float = 100.0
+    # turbulence: MIL-F-8785C low-altitude light-to-moderate intensities (σ_u,v ≈ 1.5, σ_w ≈ 1 m/s at
+    # 100 m) and correlation times L/V (L_u ≈ 250 m at 18 m/s; L_w = h ≈ 100 m)
+    gust_sigma_m_s: tuple[float, float, float] = (1.5, 1.5, 1.0)
+    gust_tau_s: tuple[float, float, float] = (14.0, 14.0, 6.0)
+
+
+class InsProcess:
+    """Strapdown mechanisation (:class:`~vdm_aero.nav.contracts.ProcessModel`)."""
+
+    def __init__(self, noise: ProcessNoise | None = None) -> None:
+        self.noise_densities = noise or ProcessNoise()
+        n = self.noise_densities
+        q = np.zeros(N_ERR)
+        q[IDX["v"]] = n.accel_m_s2**2
+        q[IDX["theta"]] = n.gyro_rad_s**2
+        q[IDX["ba"]] = n.accel_bias_m_s3**2
+        q[IDX["bg"]] = n.gyro_bias_rad_s2**2
+        q[IDX["wind"]] = (n.wind_horizontal_m_s2**2, n.wind_horizontal_m_s2**2, n.wind_vertical_m_s2**2)
+        q[IDX["bm"]] = n.mag_bias_ut_s**2
+        q[IDX["baro"]] = n.baro_m_s**2
+        q[IDX["aero"]] = np.square(n.aero_per_s)
+        q[IDX["gnss"]] = 2.0 / n.gnss_tau_s * np.square([n.gnss_sigma_ne_m, n.gnss_sigma_ne_m, n.gnss_sigma_d_m])
+        q[IDX["gust"]] = 2.0 / np.asarray(n.gust_tau_s) * np.square(n.gust_sigma_m_s)
+        self._gust_rate = 1.0 / np.asarray(n.gust_tau_s)
+        self._qc = q
+        self._g = np.array([0.0, 0.0, G0_M_S2])
+
+    def propagate(self, x: NavState, u: ImuIncrement) -> NavState:
+        out = x.copy()
+        self.propagate_inplace(out, u)
+        return out
+
+    def propagate_inplace(self, x: NavState, u: ImuIncrement) -> None:
+        dt = u.dt_s
+        x.b_gnss_ned *= math.exp(-dt / self.noise_densities.gnss_tau_s)
+        x.gust_ned *= np.exp(-dt * self._gust_rate)
+        c0 = dcm_from_quat(x.q_nb)
+        dth = u.dtheta_b - x.b_gyro_b * dt
+        q = quat_multiply(x.q_nb, quat_exp(dth))
+        x.q_nb = q / math.sqrt(float(q @ q))
+        c1 = dcm_from_quat(x.q_nb)
+        dv_n = 0.5 * (c0 + c1) @ (u.dvel_b - x.b_accel_b * dt) + self._g * dt
+        v0 = x.v_ned.copy()
+        x.v_ned = v0 + dv_n
+        x.p_ned = x.p_ned + 0.5 * (v0 + x.v_ned) * dt
+
+    def transition(self, x: NavState, u: ImuIncrement) -> F64Array:
+        """Φ ≈ I + F·Δt + ½(F·Δt)², with the attitude at mid-step (as the mechanisation rotates Δv)."""
+        dt = u.dt_s
+        f_b = u.dvel_b / dt - x.b_accel_b
+        w_b = u.dtheta_b / dt - x.b_gyro_b
+        c = dcm_from_quat(quat_multiply(x.q_nb, quat_exp(0.5 * w_b * dt)))
+        f = np.zeros((N_ERR, N_ERR))
+        f[0:3, 3:6] = np.eye(3)
+        f[3:6, 6:9] = -c @ skew(f_b)
+        f[3:6, 12:15] = -c
+        f[6:9, 6:9] = -skew(w_b)
+        f[6:9, 9:12] = -np.eye(3)
+        g = IDX["gnss"]
+        f[g, g] = -np.eye(3) / self.noise_densities.gnss_tau_s
+        gu = IDX["gust"]
+        f[gu, gu] = -np.diag(self._gust_rate)
+        fdt = f * dt
+        return np.eye(N_ERR) + fdt + 0.5 * fdt @ fdt
+
+    def noise(self, x: NavState, u: ImuIncrement) -> F64Array:
+        """Q_d = G·Q_c·Gᵀ·Δt (the velocity noise rotated to NED; its covariance is isotropic)."""
+        return np.diag(self._qc * u.dt_s)

@@ -1,0 +1,216 @@
+"""A flight log as the filter's time-ordered measurement stream, and a runner that drives several
+filters (modes) through it together, with GNSS removed inside outage windows.
+
+The runner is the log-side twin of the service's MAVLink loop: the same :class:`NavFilter` calls, in time
+order, with the same port front end. It can be copied (``copy.deepcopy``) at any point, so that one
+converged run branches into several outages.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from vdm_aero._typing import F64Array
+from vdm_aero.atmosphere import density_kg_m3
+from vdm_aero.flightlog import SensorLog
+from vdm_aero.geodesy import LocalFrame
+from vdm_aero.nav.contracts import ImuIncrement
+from vdm_aero.nav.filter import NavFilter
+from vdm_aero.nav.ports_frontend import PortFrontEnd
+from vdm_aero.vehicle import VehicleDescription
+
+__all__ = ["LogRunner", "NavStream"]
+
+_IMU, _GNSS, _BARO, _MAG, _PITOT, _SERVO, _PORTS = range(7)
+_PORT_SOLVE_HZ = 10.0  # FADS and the aero models run at the aiding rate; port health sees every frame
+T_TESLA_TO_UT = 1e6
+
+
+@dataclass(frozen=True, eq=False)
+class NavStream:
+    """Every measurement of a log in SI units (magnetometer µT), IMU summed to filter-rate increments."""
+
+    imu_t_s: F64Array
+    dtheta_b: F64Array
+    dvel_b: F64Array
+    imu_dt_s: F64Array
+    imu_temperature_c: F64Array
+    gnss_t_valid_s: F64Array
+    gnss_t_s: F64Array
+    gnss_p_ned_m: F64Array
+    gnss_v_ned_m_s: F64Array
+    baro_t_s: F64Array
+    baro_pa: F64Array
+    mag_t_s: F64Array
+    mag_b_ut: F64Array
+    pitot_t_s: F64Array
+    pitot_dp_pa: F64Array
+    servo_t_s: F64Array
+    controls_rad: F64Array
+    throttle: F64Array
+    ports_t_s: F64Array
+    ports_dp_pa: F64Array
+    events: np.ndarray  # (E, 2) int64: kind, index; in time order
+    event_t_s: F64Array  # (E,) the events' times [s]
+
+    @classmethod
+    def from_log(
+        cls,
+        log: SensorLog,
+        vehicle: VehicleDescription,
+        frame: LocalFrame,
+        *,
+        filter_rate_hz: float = 50.0,
+        gnss_latency_s: float = 0.1,
+    ) -> NavStream:
+        t = log["imu_t_s"]
+        if len(t) < 2:
+            raise ValueError(f"{log.path}: fewer than two IMU samples")
+        dt_imu = float(np.median(np.diff(t)))
+        k = max(round(1.0 / (filter_rate_hz * dt_imu)), 1)
+        n = (len(t) // k) * k
+        groups = n // k
+        dth = (log["imu_gyro_b_rad_s"][:n] * dt_imu).reshape(groups, k, 3).sum(axis=1)
+        dv = (log["imu_accel_b_m_s2"][:n] * dt_imu).reshape(groups, k, 3).sum(axis=1)
+        t_end = t[k - 1 : n : k] + dt_imu
+        temp = log["imu_temperature_c"][k - 1 : n : k]
+        gt = log["gnss_t_s"]
+        p_ned = (
+            frame.to_ned(log["gnss_lat_deg"], log["gnss_lon_deg"], log["gnss_alt_m"]) if len(gt) else np.zeros((0, 3))
+        )
+        ail, ele, rud, thr = vehicle.servos.deflections_rad(log["servo_pwm_us"]) if len(log["servo_t_s"]) else (
+            np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0))  # fmt: skip
+        s = cls(
+            imu_t_s=t_end,
+            dtheta_b=dth,
+            dvel_b=dv,
+            imu_dt_s=np.full(groups, k * dt_imu),
+            imu_temperature_c=temp,
+            gnss_t_valid_s=gt,
+            gnss_t_s=gt + gnss_latency_s,
+            gnss_p_ned_m=np.asarray(p_ned).reshape(-1, 3),
+            gnss_v_ned_m_s=log["gnss_v_ned_m_s"],
+            baro_t_s=log["baro_t_s"],
+            baro_pa=log["baro_pa"],
+            mag_t_s=log["mag_t_s"],
+            mag_b_ut=log["mag_field_b_t"] * T_TESLA_TO_UT,
+            pitot_t_s=log["pitot_t_s"],
+            pitot_dp_pa=log["pitot_dp_pa"],
+            servo_t_s=log["servo_t_s"],
+            controls_rad=np.column_stack([ail, ele, rud]) if len(ail) else np.zeros((0, 3)),
+            throttle=np.asarray(thr),
+            ports_t_s=log["ports_t_s"],
+            ports_dp_pa=log["ports_dp_pa"],
+            events=np.zeros((0, 2), dtype=np.int64),
+            event_t_s=np.zeros(0),
+        )
+        times = [s.imu_t_s, s.gnss_t_s, s.baro_t_s, s.mag_t_s, s.pitot_t_s, s.servo_t_s, s.ports_t_s]
+        kinds = np.concatenate([np.full(len(tt), i) for i, tt in enumerate(times)])
+        idx = np.concatenate([np.arange(len(tt)) for tt in times])
+        order = np.lexsort((kinds, np.concatenate(times)))
+        return dataclasses.replace(
+            s,
+            events=np.column_stack([kinds[order], idx[order]]).astype(np.int64),
+            event_t_s=np.concatenate(times)[order],
+        )
+
+
+class LogRunner:
+    """Drives filters through a :class:`NavStream` (see the module docstring)."""
+
+    def __init__(self, stream: NavStream, filters: dict[str, NavFilter], frontend: PortFrontEnd | None) -> None:
+        self.stream = stream
+        self.filters = filters
+        self.frontend = frontend
+        self.pos = 0
+        self.t_s = -math.inf
+        self.gnss_blocked: list[tuple[float, float]] = []
+        self._omega = np.zeros(3)
+        self._f = np.array([0.0, 0.0, -9.80665])
+        self._controls = np.zeros(3)
+        self._rho = 1.225
+        self._temp_k = 288.15
+        self._mag: F64Array | None = None
+        self._next_port_solve = -math.inf
+
+    def __deepcopy__(self, memo: dict[int, Any]) -> LogRunner:
+        """A branch of the run: copies of the filters and the front end, the same (read-only) stream."""
+        out = copy.copy(self)
+        out.filters = copy.deepcopy(self.filters, memo)
+        out.frontend = copy.deepcopy(self.frontend, memo)
+        out.gnss_blocked = list(self.gnss_blocked)
+        return out
+
+    def block_gnss(self, start_s: float, end_s: float) -> None:
+        """Drop every GNSS fix valid in [start_s, end_s) (an outage)."""
+        self.gnss_blocked.append((start_s, end_s))
+
+    def _gnss_ok(self, t_valid: float) -> bool:
+        return not any(a <= t_valid < b for a, b in self.gnss_blocked)
+
+    def run_until(self, t_end_s: float, on_step: Callable[[float], None] | None = None) -> None:
+        """Process every event before ``t_end_s``; ``on_step(t)`` after each filter step."""
+        s = self.stream
+        times = s.event_t_s
+        ev = s.events
+        filters = list(self.filters.values())
+        fe = self.frontend
+        while self.pos < len(ev) and times[self.pos] < t_end_s:
+            kind, i = int(ev[self.pos, 0]), int(ev[self.pos, 1])
+            t = float(times[self.pos])
+            self.pos += 1
+            self.t_s = t
+            if kind == _IMU:
+                inc = ImuIncrement(s.dtheta_b[i], s.dvel_b[i], float(s.imu_dt_s[i]))
+                self._omega, self._f = inc.dtheta_b / inc.dt_s, inc.dvel_b / inc.dt_s
+                self._temp_k = float(s.imu_temperature_c[i]) + 273.15
+                for f in filters:
+                    f.imu(t, inc, float(s.imu_temperature_c[i]))
+                if on_step is not None:
+                    on_step(t)
+            elif kind == _GNSS:
+                tv = float(s.gnss_t_valid_s[i])
+                if not self._gnss_ok(tv):
+                    continue
+                for f in filters:
+                    if not f.initialised:
+                        f.initialise(t, s.gnss_p_ned_m[i], s.gnss_v_ned_m_s[i], self._f, self._mag)
+                    else:
+                        f.gnss(tv, t, s.gnss_p_ned_m[i], s.gnss_v_ned_m_s[i])
+            elif kind == _BARO:
+                self._rho = float(density_kg_m3(float(s.baro_pa[i]), self._temp_k))
+                for f in filters:
+                    f.baro(t, float(s.baro_pa[i]))
+            elif kind == _MAG:
+                self._mag = s.mag_b_ut[i]
+                for f in filters:
+                    f.mag(t, s.mag_b_ut[i])
+            elif kind == _PITOT:
+                for f in filters:
+                    f.pitot(t, float(s.pitot_dp_pa[i]))
+            elif kind == _SERVO:
+                self._controls = s.controls_rad[i]
+                for f in filters:
+                    f.servo(t, s.controls_rad[i], float(s.throttle[i]))
+            elif kind == _PORTS and fe is not None:
+                ok = fe.health(s.ports_dp_pa[i])
+                if t < self._next_port_solve:
+                    continue
+                self._next_port_solve = t + 1.0 / _PORT_SOLVE_HZ - 1e-6
+                frame = fe.process(t, s.ports_dp_pa[i], self._rho, self._omega, self._controls, ok)
+                for f in filters:
+                    f.ports(frame)
+
+
+def modes_needing(modes: Sequence[str]) -> set[str]:
+    """The port aero models (by name) that a set of modes needs."""
+    from vdm_aero.nav.filter import MODES
+
+    return {MODES[m].force for m in modes if MODES[m].force not in (None, "classic")}  # type: ignore[misc]
