@@ -136,3 +136,26 @@ def test_consider_update_keeps_considered_states_and_their_covariance_consistent
     assert np.all(np.linalg.eigvalsh(eng.P) > 0.0)
     # and no larger than the prior anywhere on the diagonal
     assert np.all(np.diag(eng.P) <= np.diag(p0) + 1e-12)
+
+
+def test_turbulence_intensity_recovers_a_gauss_markov_gust() -> None:
+    # ĝ a first-order Gauss–Markov gust with known σ (τ 14 s, 50 Hz) and a filter variance P on top:
+    # E[ĝ²] + P estimates σ² + P; over 3000 s (≈ 200 correlation times) the sampling error is about ±5 %
+    from vdm_aero.nav.filter import TURBULENCE_SIGMA_BOUNDS_M_S, TurbulenceIntensity
+
+    rng = np.random.default_rng(42)
+    dt, tau = 0.02, 14.0
+    sigma = np.array([1.3, 1.3, 0.8])
+    phi = math.exp(-dt / tau)
+    g = rng.normal(0.0, sigma)
+    est = TurbulenceIntensity()
+    p_gust = np.full(3, 0.8**2)  # large enough that leaving it out would show (0.8 → 1.13 m/s vertically)
+    for _ in range(round(3000.0 / dt)):
+        g = phi * g + math.sqrt(1.0 - phi * phi) * rng.normal(0.0, sigma)
+        out = est.observe(g, p_gust, dt)
+    np.testing.assert_allclose(out, np.sqrt(sigma**2 + p_gust), rtol=0.1)
+    # still air: the estimate stops at the lower bound (the air data's own noise), it never reaches zero
+    calm = TurbulenceIntensity()
+    for _ in range(1000):
+        out = calm.observe(np.zeros(3), np.zeros(3), dt)
+    np.testing.assert_array_equal(out, TURBULENCE_SIGMA_BOUNDS_M_S[0])

@@ -37,7 +37,7 @@ def register(sub: Any) -> None:
     p.add_argument("--seed", type=int, default=0)
     n = p.add_argument_group("nav-drift")
     n.add_argument("--scenario", default="survey", help="comma-separated: survey, wind-shear, loiter, no-airspeed, "
-                   "pitot-blocked, manoeuvring, or all")  # fmt: skip
+                   "pitot-blocked, manoeuvring, survey-calm, or all")  # fmt: skip
     n.add_argument("--seeds", type=int, default=20, help="seeds per scenario")
     n.add_argument("--outage-s", default="30,60,120,300", help="outage lengths [s], comma-separated")
     n.add_argument("--modes", default="all", help="comma-separated navigation modes (default all)")

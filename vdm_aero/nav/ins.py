@@ -84,10 +84,16 @@ class InsProcess:
         q[IDX["baro"]] = n.baro_m_s**2
         q[IDX["aero"]] = np.square(n.aero_per_s)
         q[IDX["gnss"]] = 2.0 / n.gnss_tau_s * np.square([n.gnss_sigma_ne_m, n.gnss_sigma_ne_m, n.gnss_sigma_d_m])
-        q[IDX["gust"]] = 2.0 / np.asarray(n.gust_tau_s) * np.square(n.gust_sigma_m_s)
         self._gust_rate = 1.0 / np.asarray(n.gust_tau_s)
         self._qc = q
+        self.set_gust_sigma(np.asarray(n.gust_sigma_m_s, dtype=np.float64))
         self._g = np.array([0.0, 0.0, G0_M_S2])
+
+    def set_gust_sigma(self, sigma_m_s: F64Array) -> None:
+        """The gust's steady-state standard deviation (N, E, D) [m/s]: q = 2σ²/τ keeps the Gauss–Markov
+        variance at σ² (the filter sets it from the turbulence it measures while aided)."""
+        self.gust_sigma_m_s = np.array(sigma_m_s, dtype=np.float64)
+        self._qc[IDX["gust"]] = 2.0 * self._gust_rate * np.square(self.gust_sigma_m_s)
 
     def propagate(self, x: NavState, u: ImuIncrement) -> NavState:
         out = x.copy()
