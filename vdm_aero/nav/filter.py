@@ -160,8 +160,9 @@ class TurbulenceIntensity:
 
     A fixed gust model is wrong somewhere. Measured on survey flights (``airspeed-dr``, 60 s outage): in
     still air σ = 0.2 m/s instead of 1.5 cuts the error from 29 m to 6 m; in moderate turbulence σ = 0.3
-    instead of 1.5 makes it 83 m instead of 32 m (docs/navigation.md). So the filter measures it: with GNSS and air data the total wind is observed and
-    the gust state ĝ is its fast part; E[g²] = E[ĝ²] + P_gg for a consistent filter. The second moment is
+    instead of 1.5 makes it 83 m instead of 32 m (docs/navigation.md). So the filter measures it: with GNSS
+    and air data the total wind is observed and the gust state ĝ is its fast part; E[g²] = E[ĝ²] + P_gg for
+    a consistent filter. The second moment is
     averaged over :data:`TURBULENCE_AVERAGE_S` (a running mean until then), horizontally over N and E
     (the turbulence is isotropic there, its axes turn with the course), and held in an outage. It measures
     whatever makes the air-relative velocity wander (air-data model errors too), which is what the gust state
