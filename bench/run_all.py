@@ -115,7 +115,7 @@ def bench_nav_speed(repeats: int) -> dict[str, Any]:
 
 
 def bench_nav_drift(repeats: int) -> dict[str, Any]:
-    """``vdm-aero bench nav-drift`` over every scenario, 20 seeds, 60 and 120 s outages (about 45 min on 2 cores)."""
+    """``vdm-aero bench nav-drift`` over every scenario, 20 seeds, 60 and 120 s outages (53 min on 2 cores)."""
     from vdm_aero.nav.filter import MODES
     from vdm_aero_cli.nav_bench import SCENARIOS, BenchSpec, build_artifacts, run_nav_drift, write_report
 

@@ -4,8 +4,8 @@ Why the IMU drives the process instead of being an observation of a dynamic-mode
 Skaloud): the IMU is the one sensor that is always there, at hundreds of hertz, with a well-known error
 model; the aerodynamic model is uncertain (the as-built aircraft is not the design) and enters as a
 measurement whose noise states that uncertainty. A dynamic-model process would put that model error into
-the process noise of every step and needs thrust, moments and inertia exactly; measured on the survey
-benchmark (docs/navigation.md) the mechanisation at 50 Hz also costs a fraction of a dynamic-model step.
+the process noise of every step and needs thrust, moments and inertia exactly, and the calibrated moment
+coefficients are the least accurate part of the model (docs/navigation.md).
 
 Flat, non-rotating Earth about the local origin: over an outage of minutes and kilometres the neglected
 terms (Earth rate 7.3e-5 rad/s, transport rate, gravity change) are far below the MEMS errors; the gyro
