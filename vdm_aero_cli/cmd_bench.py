@@ -145,8 +145,7 @@ def run_nav_drift_cli(args: argparse.Namespace) -> int:
     spec = BenchSpec(scenarios=scenarios, seeds=args.seeds, outages_s=outages, modes=modes, first_seed=args.seed)
     root = args.models or args.out
     if args.models is not None:
-        art = NavArtifacts(root / "data" / "uav-envelope", root / "models" / "deim12",
-                           root / "models" / f"deim12-calibrated-{args.calibration_minutes:g}min")  # fmt: skip
+        art = NavArtifacts.under(root, args.calibration_minutes)
         for p in (art.dataset_dir / "dataset.yaml", art.deim_dir / "model.yaml", art.nn_dir / "model.yaml"):
             if not p.is_file():
                 raise UserInputError(f"bench nav-drift: --models: {p} missing (run once without --models to build it)")

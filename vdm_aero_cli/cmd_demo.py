@@ -114,9 +114,7 @@ def run_demo(args: argparse.Namespace) -> int:
     from vdm_aero.nav.filter import MODES
     from vdm_aero_cli.nav_bench import BenchSpec, NavArtifacts, run_nav_drift, write_report
 
-    cal = out / "calibration"
-    art = NavArtifacts(cal / "data" / "uav-envelope", cal / "models" / "deim12",
-                       cal / "models" / "deim12-calibrated-2min")  # fmt: skip
+    art = NavArtifacts.under(out / "calibration", calibration_minutes=2.0)
     spec = BenchSpec(scenarios=("survey",), seeds=3, outages_s=(60.0,), modes=tuple(MODES))
     paths = write_report(run_nav_drift(spec, art), out / "navigation")
     print("\nnavigation through a 60 s GNSS outage (survey, 3 seeds):")

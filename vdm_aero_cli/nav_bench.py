@@ -66,6 +66,12 @@ class NavArtifacts:
     deim_dir: Path
     nn_dir: Path
 
+    @classmethod
+    def under(cls, root: Path, calibration_minutes: float) -> NavArtifacts:
+        """The layout :func:`build_artifacts` and the calibration study write below ``root``."""
+        return cls(root / "data" / "uav-envelope", root / "models" / "deim12",
+                   root / "models" / f"deim12-calibrated-{calibration_minutes:g}min")  # fmt: skip
+
 
 @dataclass(frozen=True)
 class BenchSpec:
@@ -577,11 +583,10 @@ def build_artifacts(out: Path, *, calibration_minutes: float = 10.0, max_epochs:
     from vdm_aero.vehicle import load_vehicle
     from vdm_aero_cli.calibration_study import CALIBRATION_START_S, design_models
 
-    deim_dir = out / "models" / "deim12"
-    nn_dir = out / "models" / f"deim12-calibrated-{calibration_minutes:g}min"
-    data_dir = out / "data" / "uav-envelope"
+    art = NavArtifacts.under(out, calibration_minutes)
+    deim_dir, nn_dir, data_dir = art.deim_dir, art.nn_dir, art.dataset_dir
     if (nn_dir / "model.yaml").is_file() and (deim_dir / "model.yaml").is_file():
-        return NavArtifacts(data_dir, deim_dir, nn_dir)
+        return art
     if progress:
         progress("design data set, DEIM and the design net")
     deim_dir, _, _ = design_models(out, 12, grid="quick", seed=seed, max_epochs=max_epochs)
