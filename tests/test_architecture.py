@@ -94,3 +94,17 @@ def test_navigation_knows_nothing_of_the_world() -> None:
     # no inverse crime: the filter and what it uses never import the simulator (its truth or its parameters)
     for path, names in _full_imports("vdm_aero/nav").items():
         assert not [n for n in names if n.split(".")[0] in {"sim", "vdm_aero_cli", "firmware_bridge"}], path
+
+
+def test_the_bridge_is_the_aircraft_side() -> None:
+    # firmware_bridge runs on the companion computer: no world, no CLI, no training stack
+    for path, names in imports_of("firmware_bridge").items():
+        assert not names & {"sim", "vdm_aero_cli", "torch", "onnx", "matplotlib"}, f"{path} imports {sorted(names)}"
+
+
+def test_service_and_replay_drive_the_same_filter_code() -> None:
+    # one code path from SI measurements to the filters: the service, the log replay and the benchmark
+    full = {**_full_imports("firmware_bridge"), **_full_imports("vdm_aero/nav")}
+    assert "vdm_aero.nav.driver" in full["firmware_bridge/service.py"]
+    assert "vdm_aero.nav.driver" in full["vdm_aero/nav/stream.py"]
+    assert "vdm_aero.nav.stream" in _full_imports("vdm_aero_cli")["vdm_aero_cli/nav_bench.py"]

@@ -59,6 +59,7 @@ CTX = ForceContext(rho_kg_m3=1.15, area_per_mass_m2_kg=0.39 / 2.5, mass_kg=2.5, 
 MODELS = [
     GnssPosition(0.7, 1.0),
     GnssVelocity(0.2),
+    GnssVelocity(0.2, horizontal_only=True),
     BaroAltitude(50.0, 1.0),
     MagField(np.array([20.1, -4.9, 46.5]), 1.5),
     PitotAirspeed(0.8),

@@ -22,6 +22,13 @@ def register(sub: Any) -> None:
     )
     p.add_argument("--list", action="store_true", help="list the shipped scenarios and exit")
     p.add_argument("--scenario", metavar="S")
+    p.add_argument("--nav-scenario", metavar="NAME", help="instead of --scenario: one seed of a nav-drift benchmark "
+                   "scenario (survey, loiter, ...) with its GNSS outage, the world the benchmark scores")  # fmt: skip
+    p.add_argument("--seed", type=int, default=0, help="with --nav-scenario: the benchmark seed")
+    p.add_argument("--outage-s", type=float, default=60.0, help="with --nav-scenario: the outage length [s]")
+    p.add_argument("--ports-rate-hz", type=float, help="with --nav-scenario: the port sampling rate (50..100 Hz)")
+    p.add_argument("--ports-model", type=Path, metavar="DIR",
+                   help="with --nav-scenario: the DEIM model whose ports the aircraft carries")  # fmt: skip
     p.add_argument("--connect", metavar="URL", default="udpout:127.0.0.1:14550")
     p.add_argument("--speed", type=float, default=1.0, help="world seconds per wall second; 0 = as fast as possible")
     p.add_argument("--duration-s", type=float, help="world time to fly [s] (default: the scenario's duration)")
@@ -66,8 +73,8 @@ def run_sitl_cmd(args: argparse.Namespace) -> int:
         for name in scenario_names():
             print(name)
         return 0
-    if not args.scenario:
-        raise UserInputError("sitl: give --scenario S (or --list)")
+    if not args.scenario and not args.nav_scenario:
+        raise UserInputError("sitl: give --scenario S or --nav-scenario NAME (or --list)")
     key = None
     if args.signing_key is not None:
         try:
@@ -83,7 +90,7 @@ def run_sitl_cmd(args: argparse.Namespace) -> int:
     from sim.flight.world import FlightWorld
     from sim.sitl.autopilot import run_sitl
 
-    scenario = load_scenario(args.scenario)
+    scenario = load_scenario(args.scenario) if args.scenario else _nav_scenario(args)
     duration = args.duration_s if args.duration_s is not None else scenario.duration_s
     if not duration > 0:
         raise UserInputError("--duration-s: must be > 0")
@@ -120,6 +127,33 @@ def run_sitl_cmd(args: argparse.Namespace) -> int:
             f"ODOMETRY {summary['odometry']}; link {'heard from' if summary['link_active'] else 'silent'}"
         )
     return 0
+
+
+def _nav_scenario(args: argparse.Namespace) -> Any:
+    """The benchmark's flight for (scenario, seed) with its outage in the world's GNSS receiver."""
+    from dataclasses import replace
+
+    from sim.flight.sensors import TimeWindow
+    from vdm_aero_cli.nav_bench import AFTER_S, OUTAGE_START_S, SCENARIOS, bench_scenario
+
+    if args.nav_scenario not in SCENARIOS:
+        raise UserInputError(f"--nav-scenario: unknown {args.nav_scenario!r}; known: {', '.join(SCENARIOS)}")
+    if SCENARIOS[args.nav_scenario][3] not in (None, "shear"):
+        raise UserInputError(f"--nav-scenario {args.nav_scenario}: its fault is injected into logs, not the world")
+    if args.ports_model is None:
+        raise UserInputError("--nav-scenario needs --ports-model DIR (the DEIM model that placed the ports)")
+    if not args.outage_s > 0:
+        raise UserInputError("--outage-s: must be > 0")
+    duration = OUTAGE_START_S[1] + args.outage_s + AFTER_S + 5.0  # as the benchmark flies it
+    sc, _, t_out = bench_scenario(args.nav_scenario, args.seed, args.ports_model, duration)
+    gnss = replace(sc.gnss, outages=(TimeWindow(t_out, t_out + args.outage_s),))
+    if args.ports_rate_hz is not None:
+        if not 50.0 <= args.ports_rate_hz <= 100.0:
+            raise UserInputError("--ports-rate-hz: the port transducers run at 50..100 Hz")
+        sc = replace(sc, ports=replace(sc.ports, rate_hz=args.ports_rate_hz))
+    print(f"nav scenario {args.nav_scenario} seed {args.seed}: GNSS outage {t_out:.2f} … {t_out + args.outage_s:.2f} s",
+          flush=True)  # fmt: skip
+    return replace(sc, gnss=gnss, duration_s=t_out + args.outage_s + AFTER_S)
 
 
 def run_plot_flight(args: argparse.Namespace) -> int:

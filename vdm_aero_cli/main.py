@@ -11,7 +11,17 @@ import sys
 from collections.abc import Sequence
 
 from vdm_aero.errors import UserInputError
-from vdm_aero_cli import cmd_bench, cmd_calibrate, cmd_data, cmd_demo, cmd_model, cmd_sitl, discover, paper
+from vdm_aero_cli import (
+    cmd_bench,
+    cmd_calibrate,
+    cmd_data,
+    cmd_demo,
+    cmd_model,
+    cmd_serve,
+    cmd_sitl,
+    discover,
+    paper,
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -25,6 +35,7 @@ def build_parser() -> argparse.ArgumentParser:
     paper.register(sub)
     discover.register(sub)
     cmd_sitl.register(sub)
+    cmd_serve.register(sub)
     cmd_calibrate.register(sub)
     cmd_bench.register(sub)
     cmd_demo.register(sub)

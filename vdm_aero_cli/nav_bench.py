@@ -33,6 +33,7 @@ from vdm_aero._typing import F64Array
 from vdm_aero.flightlog import SensorLog
 from vdm_aero.geodesy import LocalFrame
 from vdm_aero.nav.filter import MODES, NavConfig, NavFilter
+from vdm_aero.nav.models import NavModels
 from vdm_aero.nav.stream import LogRunner, NavStream
 from vdm_aero.rotation import euler_from_quat, quat_log, quat_multiply
 
@@ -97,11 +98,14 @@ def _draws_of(name: str) -> str:
     return next(n for n in SCENARIOS if _flight_key(n)[:2] == (preset, shear))
 
 
-def _flight(name: str, seed: int, artifacts: NavArtifacts, duration_s: float
-            ) -> tuple[dict[str, F64Array], dict[str, F64Array], dict[str, Any], float]:  # fmt: skip
-    """Fly one seed of a scenario: (sensor arrays, truth arrays, meta, outage start)."""
+def bench_scenario(name: str, seed: int, deim_dir: Path, duration_s: float) -> tuple[Any, dict[str, Any], float]:
+    """One seed of a scenario as the world flies it: (``sim.flight.scenario.Scenario``, meta, outage start).
+
+    The scenario has no GNSS outage of its own: the benchmark removes the fixes in the filter's stream, and
+    the SITL run (``vdm-aero sitl --nav-scenario``) adds the outage window to the world's receiver.
+    """
     from sim.flight.environment import SteadyWind, WindShear
-    from sim.flight.record import fly, with_model_ports
+    from sim.flight.record import with_model_ports
     from sim.flight.scenario import load_scenario
 
     preset, shear, levels = _flight_key(name)
@@ -111,14 +115,13 @@ def _flight(name: str, seed: int, artifacts: NavArtifacts, duration_s: float
     wind = SteadyWind(speed_m_s=float(rng.uniform(w_lo, w_hi)), from_deg=float(rng.uniform(0.0, 360.0)))
     level = str(levels[min(int(rng.integers(len(draw_levels))), len(levels) - 1)])
     t_out = float(rng.uniform(*OUTAGE_START_S))
-    sc = with_model_ports(load_scenario(preset), artifacts.deim_dir)
+    sc = with_model_ports(load_scenario(preset), deim_dir)
     wind_shear = None
     if shear:
         wind_shear = WindShear(start_s=t_out + 20.0, ramp_s=10.0,
                           to=SteadyWind(wind.speed_m_s + 4.0, wind.from_deg + 60.0))  # fmt: skip
     sc = replace(sc, seed=int(rng.integers(2**31)), wind=wind, turbulence=level, wind_shear=wind_shear,
                  duration_s=duration_s)  # fmt: skip
-    sensors, truth, _ = fly(sc, duration_s=duration_s)
     meta = {
         "home": {"lat_deg": sc.home_lat_deg, "lon_deg": sc.home_lon_deg, "alt_m": sc.home_alt_m},
         "mag_field_ned_t": [float(v) for v in sc.magnetic_field.ned_t],
@@ -127,9 +130,19 @@ def _flight(name: str, seed: int, artifacts: NavArtifacts, duration_s: float
         "turbulence": level,
         "sim_seed": sc.seed,
         "duration_s": duration_s,
-        "alpha_max_deg": float(np.degrees(truth["alpha_rad"].max())),
-        "bank_max_deg": float(np.degrees(np.max(np.abs([euler_from_quat(q)[0] for q in truth["q_nb"][::10]])))),
     }
+    return sc, meta, t_out
+
+
+def _flight(name: str, seed: int, artifacts: NavArtifacts, duration_s: float
+            ) -> tuple[dict[str, F64Array], dict[str, F64Array], dict[str, Any], float]:  # fmt: skip
+    """Fly one seed of a scenario: (sensor arrays, truth arrays, meta, outage start)."""
+    from sim.flight.record import fly
+
+    sc, meta, t_out = bench_scenario(name, seed, artifacts.deim_dir, duration_s)
+    sensors, truth, _ = fly(sc, duration_s=duration_s)
+    meta["alpha_max_deg"] = float(np.degrees(truth["alpha_rad"].max()))
+    meta["bank_max_deg"] = float(np.degrees(np.max(np.abs([euler_from_quat(q)[0] for q in truth["q_nb"][::10]]))))
     return sensors, truth, meta, t_out
 
 
@@ -150,35 +163,13 @@ def _apply_fault(sensors: dict[str, F64Array], fault: str | None, t_out: float) 
 
 
 # ----------------------------------------------------------------------------------- the filter side
-@dataclass
-class _Nav:
-    """Filter ingredients shared by every run of a worker (loaded once)."""
-
-    artifacts: NavArtifacts
-    vehicle: Any
-    derivatives: Any
-    pressure_model: Any
-    models: dict[str, Any]
-
-    @classmethod
-    def load(cls, artifacts: NavArtifacts) -> _Nav:
-        from vdm_aero.model import AeroModel
-        from vdm_aero.nav.design_fit import DesignFlightData, PortPressureModel, StabilityDerivatives
-        from vdm_aero.vehicle import load_vehicle
-
-        deim = AeroModel.load(artifacts.deim_dir)
-        nn = AeroModel.load(artifacts.nn_dir)
-        data = DesignFlightData.load(artifacts.dataset_dir, deim.port_names)
-        return cls(artifacts, load_vehicle("uav-2m"), StabilityDerivatives.fit(data), PortPressureModel.fit(data),
-                   {"deim": deim, "deim-nn": nn})  # fmt: skip
+_NAV_CACHE: dict[Path, NavModels] = {}
 
 
-_NAV_CACHE: dict[Path, _Nav] = {}
-
-
-def _nav(artifacts: NavArtifacts) -> _Nav:
+def _nav(artifacts: NavArtifacts) -> NavModels:
+    """The filter ingredients, loaded once per worker."""
     if artifacts.nn_dir not in _NAV_CACHE:
-        _NAV_CACHE[artifacts.nn_dir] = _Nav.load(artifacts)
+        _NAV_CACHE[artifacts.nn_dir] = NavModels.load(artifacts.dataset_dir, artifacts.deim_dir, artifacts.nn_dir)
     return _NAV_CACHE[artifacts.nn_dir]
 
 
@@ -195,7 +186,7 @@ def run_filters(
     t_out: float,
     outages_s: Sequence[float],
     modes: Sequence[str],
-    nav: _Nav,
+    nav: NavModels,
 ) -> dict[str, Any]:
     """All modes through one flight, branching at the outage start: per outage and mode the recorded
     history (t, position, σ_h, NEES) and the metrics."""

@@ -305,7 +305,9 @@ class MockAutopilot:
         st.gnss_outage = tick.gnss_outage
         # samples hold until replaced (sensors run at their own rates)
         st.imu = tick.imu or st.imu
-        st.gnss = tick.gnss or st.gnss
+        # a fix lost is gone: after an outage GPS_RAW_INT waits for the receiver's next fix (ArduPilot's driver
+        # does not report the last pre-outage fix again as if it were new)
+        st.gnss = None if tick.gnss_outage else (tick.gnss or st.gnss)
         st.baro = tick.baro or st.baro
         st.mag = tick.mag or st.mag
         st.airspeed = tick.airspeed or st.airspeed

@@ -15,5 +15,6 @@ Modules, contracts first (navlie style):
 * :mod:`~vdm_aero.nav.ports_frontend`: port health (NaN, out of range, stuck), air data and coefficients;
 * :mod:`~vdm_aero.nav.engine`: the one adapter around filterpy's ``ExtendedKalmanFilter``;
 * :mod:`~vdm_aero.nav.filter`: modes, the delayed-GNSS buffer, gating, outages and health;
+* :mod:`~vdm_aero.nav.driver`: SI sensor events → the filters (shared by the service, replay and benchmark);
 * :mod:`~vdm_aero.nav.stream`: a flight log as a time-ordered measurement stream.
 """

@@ -287,7 +287,9 @@ class NavFilter:
             ref = self.config.mag_field_ned_ut
             yaw = math.atan2(float(ref[1]), float(ref[0])) - math.atan2(float(m_lvl[1]), float(m_lvl[0]))
         q = np.array(quat_from_euler(roll, pitch, yaw))
-        self.x = NavState(np.array(p_ned, dtype=float), np.array(v_ned, dtype=float), q)
+        v0 = np.array(v_ned, dtype=float)
+        v0[~np.isfinite(v0)] = 0.0  # no vertical speed from MAVLink's GPS_RAW_INT: level flight, σ 0.5 m/s
+        self.x = NavState(np.array(p_ned, dtype=float), v0, q)
         sig = np.zeros(N_ERR)
         sig[IDX["p"]] = (3.0, 3.0, 5.0)
         sig[IDX["v"]] = 0.5
@@ -368,6 +370,8 @@ class NavFilter:
         self.nis.setdefault(name, []).append(res.nis)
         if res.accepted:
             self.x.plus_inplace(dx)
+            if state is not None:  # the buffered state takes the same correction: the next measurement of
+                state.plus_inplace(dx)  # the same fix (position after velocity) must not count it twice
             self.counts[name] = self.counts.get(name, 0) + 1
             if name in _AIR_DATA:
                 self._last_airdata_s = meas.t_s
@@ -376,13 +380,23 @@ class NavFilter:
         return res
 
     def gnss(self, t_valid_s: float, t_s: float, p_ned: F64Array, v_ned: F64Array) -> None:
-        """A GNSS fix valid at ``t_valid_s`` that arrived at ``t_s`` (local NED position [m], velocity)."""
+        """A GNSS fix valid at ``t_valid_s`` that arrived at ``t_s`` (local NED position [m], velocity [m/s];
+        a NaN vertical velocity fuses the horizontal velocity only)."""
         if self.x is None:
+            return
+        if self._buffer and t_valid_s < self._buffer[0][0] - 0.5 / self.config.filter_rate_hz:
+            # older than the state buffer reaches back: a stale fix (a link hiccup, a driver repeating its
+            # last fix) cannot be fused at its time of validity, and fused now it would pull the position back
+            self.rejected["gnss_stale"] = self.rejected.get("gnss_stale", 0) + 1
             return
         c = self.config
         was_outage = self.in_outage
         past = self._buffered(t_valid_s)
-        vel = self._fuse(Measurement(t_valid_s, np.asarray(v_ned, float), GnssVelocity(c.gnss_vel_sigma_m_s)), past)
+        v = np.asarray(v_ned, float)
+        horizontal = not math.isfinite(float(v[2]))  # no vertical speed (MAVLink's GPS_RAW_INT)
+        vel = self._fuse(
+            Measurement(t_valid_s, v[:2] if horizontal else v, GnssVelocity(c.gnss_vel_sigma_m_s, horizontal)), past
+        )
         pos = self._fuse(
             Measurement(t_valid_s, np.asarray(p_ned, float), GnssPosition(c.gnss_pos_sigma_ne_m, c.gnss_pos_sigma_d_m)),
             past,

@@ -123,21 +123,26 @@ class GnssPosition:
 
 @dataclass(frozen=True)
 class GnssVelocity:
-    """GNSS velocity NED [m/s]."""
+    """GNSS velocity NED [m/s]; ``horizontal_only``: N and E (MAVLink's GPS_RAW_INT has no vertical speed)."""
 
     sigma_m_s: float
+    horizontal_only: bool = False
     name: str = "gnss_vel"
 
+    @property
+    def _n(self) -> int:
+        return 2 if self.horizontal_only else 3
+
     def evaluate(self, x: NavState) -> F64Array:
-        return x.v_ned.copy()
+        return x.v_ned[: self._n].copy()
 
     def jacobian(self, x: NavState) -> F64Array:
-        h = np.zeros((3, N_ERR))
-        h[:, IDX["v"]] = np.eye(3)
+        h = np.zeros((self._n, N_ERR))
+        h[:, IDX["v"]] = np.eye(3)[: self._n]
         return h
 
     def covariance(self) -> F64Array:
-        return _diag((self.sigma_m_s,) * 3)
+        return _diag((self.sigma_m_s,) * self._n)
 
 
 # ------------------------------------------------------------------------------------ baro and mag

@@ -111,8 +111,11 @@ class PortFrontEnd:
         omega_b: F64Array,
         controls_rad: F64Array,
         ok: BoolArray | None = None,
+        qbar_pa: float | None = None,
     ) -> PortFrame:
-        """Solve one frame (``ok``: the mask :meth:`health` gave for it; checked here when None)."""
+        """Solve one frame (``ok``: the mask :meth:`health` gave for it; checked here when None). ``qbar_pa``:
+        the dynamic pressure that turns Δp into Cp for the aero models (e.g. from the pitot); by default the
+        FADS solve's."""
         if ok is None:
             ok = self.health(dp_pa)
         dp = np.where(ok, np.asarray(dp_pa, dtype=np.float64), np.nan)
@@ -130,6 +133,8 @@ class PortFrontEnd:
             self.counts["no_airdata"] += 1
             return PortFrame(t_s, ok, None, None, qbar)
         self._start = (qbar, float(vab[1]), float(vab[2]))
+        if qbar_pa is not None and math.isfinite(qbar_pa) and qbar_pa >= MIN_QBAR_PA:
+            qbar = qbar_pa
         cp = dp / qbar
         coeffs = {name: m.predict(cp) for name, m in self.models.items()}
         return PortFrame(t_s, ok, vab, cov * (len(ok) / max(int(ok.sum()), 1)), qbar, coeffs)

@@ -1,8 +1,8 @@
 """A flight log as the filter's time-ordered measurement stream, and a runner that drives several
 filters (modes) through it together, with GNSS removed inside outage windows.
 
-The runner is the log-side twin of the service's MAVLink loop: the same :class:`NavFilter` calls, in time
-order, with the same port front end. It can be copied (``copy.deepcopy``) at any point, so that one
+The runner is the log-side twin of the service's MAVLink loop: both hand SI events to the same
+:class:`~vdm_aero.nav.driver.NavDriver`. It can be copied (``copy.deepcopy``) at any point, so that one
 converged run branches into several outages.
 """
 
@@ -18,10 +18,10 @@ from typing import Any
 import numpy as np
 
 from vdm_aero._typing import F64Array
-from vdm_aero.atmosphere import density_kg_m3
 from vdm_aero.flightlog import SensorLog
 from vdm_aero.geodesy import LocalFrame
 from vdm_aero.nav.contracts import ImuIncrement
+from vdm_aero.nav.driver import NavDriver
 from vdm_aero.nav.filter import NavFilter
 from vdm_aero.nav.ports_frontend import PortFrontEnd
 from vdm_aero.vehicle import VehicleDescription
@@ -29,7 +29,6 @@ from vdm_aero.vehicle import VehicleDescription
 __all__ = ["LogRunner", "NavStream"]
 
 _IMU, _GNSS, _BARO, _MAG, _PITOT, _SERVO, _PORTS = range(7)
-_PORT_SOLVE_HZ = 10.0  # FADS and the aero models run at the aiding rate; port health sees every frame
 T_TESLA_TO_UT = 1e6
 
 
@@ -123,28 +122,27 @@ class NavStream:
 
 
 class LogRunner:
-    """Drives filters through a :class:`NavStream` (see the module docstring)."""
+    """Drives filters through a :class:`NavStream` by way of a :class:`NavDriver` (module docstring)."""
 
     def __init__(self, stream: NavStream, filters: dict[str, NavFilter], frontend: PortFrontEnd | None) -> None:
         self.stream = stream
-        self.filters = filters
-        self.frontend = frontend
+        self.driver = NavDriver(filters, frontend)
         self.pos = 0
         self.t_s = -math.inf
         self.gnss_blocked: list[tuple[float, float]] = []
-        self._omega = np.zeros(3)
-        self._f = np.array([0.0, 0.0, -9.80665])
-        self._controls = np.zeros(3)
-        self._rho = 1.225
-        self._temp_k = 288.15
-        self._mag: F64Array | None = None
-        self._next_port_solve = -math.inf
+
+    @property
+    def filters(self) -> dict[str, NavFilter]:
+        return self.driver.filters
+
+    @property
+    def frontend(self) -> PortFrontEnd | None:
+        return self.driver.frontend
 
     def __deepcopy__(self, memo: dict[int, Any]) -> LogRunner:
-        """A branch of the run: copies of the filters and the front end, the same (read-only) stream."""
+        """A branch of the run: a copy of the driver (filters, front end), the same (read-only) stream."""
         out = copy.copy(self)
-        out.filters = copy.deepcopy(self.filters, memo)
-        out.frontend = copy.deepcopy(self.frontend, memo)
+        out.driver = copy.deepcopy(self.driver, memo)
         out.gnss_blocked = list(self.gnss_blocked)
         return out
 
@@ -160,53 +158,30 @@ class LogRunner:
         s = self.stream
         times = s.event_t_s
         ev = s.events
-        filters = list(self.filters.values())
-        fe = self.frontend
+        d = self.driver
         while self.pos < len(ev) and times[self.pos] < t_end_s:
             kind, i = int(ev[self.pos, 0]), int(ev[self.pos, 1])
             t = float(times[self.pos])
             self.pos += 1
             self.t_s = t
             if kind == _IMU:
-                inc = ImuIncrement(s.dtheta_b[i], s.dvel_b[i], float(s.imu_dt_s[i]))
-                self._omega, self._f = inc.dtheta_b / inc.dt_s, inc.dvel_b / inc.dt_s
-                self._temp_k = float(s.imu_temperature_c[i]) + 273.15
-                for f in filters:
-                    f.imu(t, inc, float(s.imu_temperature_c[i]))
+                d.imu(t, ImuIncrement(s.dtheta_b[i], s.dvel_b[i], float(s.imu_dt_s[i])), float(s.imu_temperature_c[i]))
                 if on_step is not None:
                     on_step(t)
             elif kind == _GNSS:
                 tv = float(s.gnss_t_valid_s[i])
-                if not self._gnss_ok(tv):
-                    continue
-                for f in filters:
-                    if not f.initialised:
-                        f.initialise(t, s.gnss_p_ned_m[i], s.gnss_v_ned_m_s[i], self._f, self._mag)
-                    else:
-                        f.gnss(tv, t, s.gnss_p_ned_m[i], s.gnss_v_ned_m_s[i])
+                if self._gnss_ok(tv):
+                    d.gnss(tv, t, s.gnss_p_ned_m[i], s.gnss_v_ned_m_s[i])
             elif kind == _BARO:
-                self._rho = float(density_kg_m3(float(s.baro_pa[i]), self._temp_k))
-                for f in filters:
-                    f.baro(t, float(s.baro_pa[i]))
+                d.baro(t, float(s.baro_pa[i]))
             elif kind == _MAG:
-                self._mag = s.mag_b_ut[i]
-                for f in filters:
-                    f.mag(t, s.mag_b_ut[i])
+                d.mag(t, s.mag_b_ut[i])
             elif kind == _PITOT:
-                for f in filters:
-                    f.pitot(t, float(s.pitot_dp_pa[i]))
+                d.pitot(t, float(s.pitot_dp_pa[i]))
             elif kind == _SERVO:
-                self._controls = s.controls_rad[i]
-                for f in filters:
-                    f.servo(t, s.controls_rad[i], float(s.throttle[i]))
-            elif kind == _PORTS and fe is not None:
-                ok = fe.health(s.ports_dp_pa[i])
-                if t < self._next_port_solve:
-                    continue
-                self._next_port_solve = t + 1.0 / _PORT_SOLVE_HZ - 1e-6
-                frame = fe.process(t, s.ports_dp_pa[i], self._rho, self._omega, self._controls, ok)
-                for f in filters:
-                    f.ports(frame)
+                d.servo(t, s.controls_rad[i], float(s.throttle[i]))
+            elif kind == _PORTS:
+                d.ports(t, s.ports_dp_pa[i])
 
 
 def modes_needing(modes: Sequence[str]) -> set[str]:

@@ -1,0 +1,301 @@
+"""The service configuration: ``deploy/config.yaml`` documents every key.
+
+Read once at start into frozen dataclasses. Any fault, an unknown or misspelt key, a wrong type, a value out
+of range, a path that does not exist, is one :class:`ConfigError` line naming the file, the dotted key and its
+line, and the CLI exits with 2 (systemd's ``RestartPreventExitStatus=2``: a bad config is not restarted).
+Relative paths are relative to the config file's directory.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from firmware_bridge.transport import parse_url
+from vdm_aero.errors import UserInputError
+
+__all__ = ["ConfigError", "ServiceConfig", "load_config"]
+
+AUTOPILOTS = ("ardupilot", "px4")
+SOLUTION_OUTPUTS = {"ardupilot": ("gps_input", "none"), "px4": ("global_position_sensor", "odometry", "none")}
+PORT_SOURCES = ("named_value_float", "debug_float_array")
+DYNAMIC_PRESSURE = ("ports", "pitot")
+NAME_MAX = 10  # NAMED_VALUE_FLOAT name length
+
+
+class ConfigError(UserInputError):
+    """A bad service configuration (one line, exit code 2)."""
+
+
+@dataclass(frozen=True)
+class PortsConfig:
+    source: str
+    names: tuple[str, ...]  # empty: the model's port names
+    debug_array_id: int
+    frame_timeout_s: float
+    range_pa: float
+    noise_pa: float
+    dynamic_pressure: str
+
+
+@dataclass(frozen=True)
+class OutputsConfig:
+    named_values_hz: float
+    prefix: str
+    solution: str
+    solution_hz: float
+    gps_id: int
+    max_sigma_3d_m: float
+    max_sigma_m: float
+    external_wind: bool
+
+
+@dataclass(frozen=True)
+class ServiceConfig:
+    path: Path
+    connection: str
+    system_id: int
+    component_id: int
+    autopilot: str
+    signing_key_file: Path | None
+    signing_require: bool
+    design_data: Path
+    deim_model: Path
+    nn_model: Path | None
+    vehicle: str
+    mode: str
+    mag_field_ned_ut: tuple[float, float, float]
+    filter_rate_hz: float
+    ports: PortsConfig
+    streams: dict[str, float]
+    outputs: OutputsConfig
+    status_every_s: float
+    state_file: Path
+    state_save_every_s: float
+    nav_log_file: Path | None
+    nav_log_hz: float
+    nav_log_max_bytes: int
+    nav_log_backups: int
+
+
+class _Node:
+    """A YAML mapping with the line of every key, typed getters, and unknown-key checks."""
+
+    def __init__(self, node: yaml.Node, origin: Path, path: str) -> None:
+        self.origin, self.path = origin, path
+        self.line = node.start_mark.line + 1
+        if not isinstance(node, yaml.MappingNode):
+            raise ConfigError(f"{origin}:{self.line}: {path or 'config'}: expected a mapping")
+        self.items: dict[str, tuple[yaml.Node, int]] = {}
+        for k, v in node.value:
+            self.items[str(k.value)] = (v, k.start_mark.line + 1)
+        self.used: set[str] = set()
+
+    def key(self, k: str) -> str:
+        return f"{self.path}.{k}" if self.path else k
+
+    def fail(self, k: str, msg: str) -> ConfigError:
+        line = self.items[k][1] if k in self.items else self.line
+        return ConfigError(f"{self.origin}:{line}: {self.key(k)}: {msg}")
+
+    def value(self, k: str, default: Any = ...) -> Any:
+        self.used.add(k)
+        if k not in self.items:
+            if default is ...:
+                raise self.fail(k, "missing required key")
+            return default
+        return yaml.SafeLoader("").construct_object(self.items[k][0], deep=True)
+
+    def sub(self, k: str) -> _Node:
+        self.used.add(k)
+        if k not in self.items:
+            raise self.fail(k, "missing required section")
+        return _Node(self.items[k][0], self.origin, self.key(k))
+
+    def has(self, k: str) -> bool:
+        return k in self.items
+
+    def num(self, k: str, default: Any = ..., *, lo: float = -math.inf, hi: float = math.inf) -> float:
+        v = self.value(k, default)
+        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+            raise self.fail(k, f"expected a number, got {v!r}")
+        if not lo <= v <= hi:
+            raise self.fail(k, f"{v} is outside [{lo:g}, {hi:g}]")
+        return float(v)
+
+    def integer(self, k: str, default: Any = ..., *, lo: int, hi: int) -> int:
+        v = self.value(k, default)
+        if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+            raise self.fail(k, f"expected an integer in [{lo}, {hi}], got {v!r}")
+        return int(v)
+
+    def boolean(self, k: str, default: Any = ...) -> bool:
+        v = self.value(k, default)
+        if not isinstance(v, bool):
+            raise self.fail(k, f"expected true or false, got {v!r}")
+        return v
+
+    def choice(self, k: str, options: tuple[str, ...], default: Any = ...) -> str:
+        v = self.value(k, default)
+        if v not in options:
+            raise self.fail(k, f"expected one of {', '.join(options)}, got {v!r}")
+        return str(v)
+
+    def text(self, k: str, default: Any = ...) -> str:
+        v = self.value(k, default)
+        if not isinstance(v, str) or not v:
+            raise self.fail(k, f"expected a non-empty string, got {v!r}")
+        return v
+
+    def path_(self, k: str, default: Any = ..., *, exists: bool = True) -> Path | None:
+        v = self.value(k, default)
+        if v is None:
+            return None
+        if not isinstance(v, str) or not v:
+            raise self.fail(k, f"expected a path, got {v!r}")
+        p = Path(v) if Path(v).is_absolute() else (self.origin.parent / v)
+        if exists and not p.exists():
+            raise self.fail(k, f"{p} does not exist")
+        return p
+
+    def finish(self) -> None:
+        for k in self.items:
+            if k not in self.used:
+                raise self.fail(k, "unknown key")
+
+
+def load_config(path: Path) -> ServiceConfig:
+    """Read and validate the service configuration (module docstring)."""
+    try:
+        text = path.read_text()
+    except OSError as e:
+        raise ConfigError(f"{path}: cannot read the config: {e.strerror or e}") from None
+    try:
+        root_node = yaml.compose(text, Loader=yaml.SafeLoader)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        raise ConfigError(f"{path}:{mark.line + 1 if mark else '?'}: YAML syntax error") from None
+    if root_node is None:
+        raise ConfigError(f"{path}: empty config")
+    try:
+        return _read(_Node(root_node, path, ""))
+    except yaml.YAMLError as e:  # a value that is not plain YAML (a tag, a bad merge)
+        raise ConfigError(f"{path}: {e}") from None
+
+
+def _read(r: _Node) -> ServiceConfig:
+    from vdm_aero.nav.filter import MODES
+
+    url = r.text("connection")
+    try:
+        parse_url(url)
+    except UserInputError as e:
+        raise r.fail("connection", str(e)) from None
+    autopilot = r.choice("autopilot", AUTOPILOTS)
+    sig = r.sub("signing")
+    signing_key = sig.path_("key_file", None)
+    signing_require = sig.boolean("require", False)
+    if signing_require and signing_key is None:
+        raise sig.fail("require", "signing is required but no key_file is given")
+    sig.finish()
+    m = r.sub("models")
+    design, deim = m.path_("design_data"), m.path_("deim")
+    nn = m.path_("deim_nn", None)
+    vehicle = m.text("vehicle", "uav-2m")
+    m.finish()
+    nav = r.sub("navigation")
+    mode = nav.choice("mode", tuple(MODES))
+    if MODES[mode].force == "deim-nn" and nn is None:
+        raise nav.fail("mode", f"{mode} needs models.deim_nn")
+    mag = nav.value("mag_field_ned_ut")
+    if not (isinstance(mag, list) and len(mag) == 3 and all(isinstance(v, int | float) for v in mag)):
+        raise nav.fail("mag_field_ned_ut", "expected [north, east, down] in µT (the WMM field at the site)")
+    if not 10.0 < math.hypot(*mag) < 80.0:
+        raise nav.fail("mag_field_ned_ut", f"|B| = {math.hypot(*mag):.1f} µT is not an Earth field (25..65 µT)")
+    filter_rate = nav.num("filter_rate_hz", 50.0, lo=10.0, hi=400.0)
+    nav.finish()
+    p = r.sub("ports")
+    names = p.value("names", [])
+    if not isinstance(names, list) or not all(
+        isinstance(n, str) and 0 < len(n) <= NAME_MAX and n.isascii() for n in names
+    ):
+        raise p.fail("names", f"expected a list of port names of 1..{NAME_MAX} ASCII characters")
+    if len(set(names)) != len(names):
+        raise p.fail("names", "duplicate port name")
+    ports = PortsConfig(
+        source=p.choice("source", PORT_SOURCES, "named_value_float"),
+        names=tuple(names),
+        debug_array_id=p.integer("debug_array_id", 0, lo=0, hi=65535),
+        frame_timeout_s=p.num("frame_timeout_s", 0.05, lo=0.001, hi=1.0),
+        range_pa=p.num("range_pa", 500.0, lo=1.0, hi=1e5),
+        noise_pa=p.num("noise_pa", 0.2, lo=1e-4, hi=1e3),
+        dynamic_pressure=p.choice("dynamic_pressure", DYNAMIC_PRESSURE, "ports"),
+    )
+    p.finish()
+    s = r.sub("streams")
+    streams = {}
+    for name in list(s.items):
+        if getattr(mavlink2, f"MAVLINK_MSG_ID_{name}", None) is None:
+            raise s.fail(name, "unknown MAVLink message")
+        streams[name] = s.num(name, lo=0.0, hi=1000.0)
+    s.finish()
+    o = r.sub("outputs")
+    prefix = o.value("prefix", "VDM")
+    if not isinstance(prefix, str) or not 0 < len(prefix) <= 4 or not prefix.isascii():
+        raise o.fail("prefix", "expected 1..4 ASCII characters (names are prefix + up to 6)")
+    outputs = OutputsConfig(
+        named_values_hz=o.num("named_values_hz", 2.0, lo=0.0, hi=50.0),
+        prefix=prefix,
+        solution=o.choice("solution", SOLUTION_OUTPUTS[autopilot]),
+        solution_hz=o.num("solution_hz", 5.0, lo=0.2, hi=50.0),
+        gps_id=o.integer("gps_id", 1, lo=0, hi=3),
+        max_sigma_3d_m=o.num("max_sigma_3d_m", 30.0, lo=0.1),
+        max_sigma_m=o.num("max_sigma_m", 300.0, lo=0.1),
+        external_wind=o.boolean("external_wind", False),
+    )
+    if outputs.external_wind and autopilot != "ardupilot":
+        raise o.fail("external_wind", "MAV_CMD_EXTERNAL_WIND_ESTIMATE is handled by ArduPilot only")
+    o.finish()
+    st = r.sub("state")
+    state_file = st.path_("file", exists=False)
+    assert state_file is not None
+    state_every = st.num("save_every_s", 30.0, lo=1.0)
+    st.finish()
+    lg = r.sub("nav_log")
+    log_file = lg.path_("file", None, exists=False)
+    log = (log_file, lg.num("hz", 5.0, lo=0.1, hi=100.0), lg.integer("max_bytes", 10_000_000, lo=10_000, hi=2**40),
+           lg.integer("backups", 5, lo=1, hi=1000))  # fmt: skip
+    lg.finish()
+    cfg = ServiceConfig(
+        path=r.origin,
+        connection=url,
+        system_id=r.integer("system_id", 1, lo=1, hi=255),
+        component_id=r.integer("component_id", mavlink2.MAV_COMP_ID_ONBOARD_COMPUTER, lo=1, hi=255),
+        autopilot=autopilot,
+        signing_key_file=signing_key,
+        signing_require=signing_require,
+        design_data=design,  # type: ignore[arg-type]
+        deim_model=deim,  # type: ignore[arg-type]
+        nn_model=nn,
+        vehicle=vehicle,
+        mode=mode,
+        mag_field_ned_ut=(float(mag[0]), float(mag[1]), float(mag[2])),
+        filter_rate_hz=filter_rate,
+        ports=ports,
+        streams=streams,
+        outputs=outputs,
+        status_every_s=r.num("status_every_s", 5.0, lo=0.5),
+        state_file=state_file,
+        state_save_every_s=state_every,
+        nav_log_file=log[0],
+        nav_log_hz=log[1],
+        nav_log_max_bytes=log[2],
+        nav_log_backups=log[3],
+    )
+    r.finish()
+    return cfg

@@ -1,0 +1,166 @@
+"""Assembling the autopilot's streams into what the navigation driver takes.
+
+* :class:`PortAssembler`: NAMED_VALUE_FLOAT port values → frames. A frame is every configured port sharing
+  one ``time_boot_ms`` (within :attr:`PortAssembler.merge_ms`: ArduPilot stamps each ``send_named_float``
+  with ``millis()`` at the call, so the ports of one script update can straddle a millisecond). A frame is
+  complete when every port has arrived; a partial one is closed after ``timeout_s`` with NaN for the missing
+  ports (they then go to the gappy model) and counted.
+* :class:`ImuIntegrator`: IMU samples → filter-rate increments (Δθ, Δv), as the log replay builds them.
+* :class:`AutopilotClock`: the autopilot's boot time → a continuous filter time across autopilot reboots,
+  and TIMESYNC: the offset between the autopilot's clock and ours.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from firmware_bridge.units import ImuSample
+from vdm_aero._typing import F64Array
+from vdm_aero.nav.contracts import ImuIncrement
+
+__all__ = ["AutopilotClock", "ImuIntegrator", "PortAssembler", "PortFrameIn"]
+
+IMU_GAP_S = 0.1  # a longer gap between IMU samples is a link loss: restart the increment, do not integrate it
+REBOOT_BACKSTEP_S = 1.0  # the autopilot's boot time stepping back this far is a reboot
+
+
+@dataclass(frozen=True)
+class PortFrameIn:
+    t_s: float  # autopilot time [s]
+    dp_pa: F64Array  # in the configured port order, NaN for ports that did not arrive
+    complete: bool
+    arrived_at: float  # local monotonic time the last value of the frame was received [s]
+
+
+class PortAssembler:
+    """Groups named port values into frames (module docstring)."""
+
+    def __init__(self, names: Sequence[str], *, timeout_s: float, merge_ms: int = 2) -> None:
+        self.names = tuple(names)
+        self.index = {n: i for i, n in enumerate(self.names)}
+        self.timeout_s = timeout_s
+        self.merge_ms = merge_ms
+        self._ms: int | None = None
+        self._values = np.full(len(self.names), np.nan)
+        self._seen = np.zeros(len(self.names), dtype=bool)
+        self._opened_at = 0.0
+        self._last_at = 0.0
+        self.counts = {"complete": 0, "partial": 0, "unknown_name": 0, "late": 0}
+
+    def _close(self, complete: bool) -> PortFrameIn:
+        assert self._ms is not None
+        out = PortFrameIn(self._ms * 1e-3, self._values.copy(), complete, self._last_at)
+        self.counts["complete" if complete else "partial"] += 1
+        self._ms = None
+        self._values[:] = np.nan
+        self._seen[:] = False
+        return out
+
+    def add(self, time_boot_ms: int, name: str, value: float, now: float) -> list[PortFrameIn]:
+        """One NAMED_VALUE_FLOAT (``now``: local monotonic receive time [s]); returns the frames it closes."""
+        i = self.index.get(name)
+        if i is None:
+            self.counts["unknown_name"] += 1
+            return []
+        out = []
+        if self._ms is not None and (self._seen[i] or abs(time_boot_ms - self._ms) > self.merge_ms):
+            if time_boot_ms < self._ms - self.merge_ms and not self._seen[i]:
+                self.counts["late"] += 1  # a straggler of an already closed frame
+                return []
+            out.append(self._close(False))
+        if self._ms is None:
+            self._ms, self._opened_at = time_boot_ms, now
+        self._values[i] = value if math.isfinite(value) else np.nan
+        self._seen[i] = True
+        self._last_at = now
+        if self._seen.all():
+            out.append(self._close(True))
+        return out
+
+    def expire(self, now: float) -> PortFrameIn | None:
+        """Close a partial frame that has waited ``timeout_s``."""
+        if self._ms is not None and now - self._opened_at > self.timeout_s:
+            return self._close(False)
+        return None
+
+
+class ImuIntegrator:
+    """Sums IMU samples over one filter step; each sample holds until the next (rectangle rule)."""
+
+    def __init__(self, filter_rate_hz: float) -> None:
+        self.step_s = 1.0 / filter_rate_hz
+        self._prev: ImuSample | None = None
+        self._dtheta = np.zeros(3)
+        self._dvel = np.zeros(3)
+        self._dt = 0.0
+        self.gaps = 0
+
+    def reset(self) -> None:
+        self._prev = None
+        self._dtheta[:] = 0.0
+        self._dvel[:] = 0.0
+        self._dt = 0.0
+
+    def add(self, s: ImuSample) -> tuple[float, ImuIncrement] | None:
+        """A sample; returns (end time [s], increment) when a filter step is complete."""
+        prev, self._prev = self._prev, s
+        if prev is None:
+            return None
+        dt = s.t_s - prev.t_s
+        if not 0.0 < dt <= IMU_GAP_S:
+            self.gaps += 1
+            self.reset()
+            self._prev = s
+            return None
+        self._dtheta += prev.gyro_b_rad_s * dt
+        self._dvel += prev.accel_b_m_s2 * dt
+        self._dt += dt
+        if self._dt < self.step_s - 0.5 * dt:
+            return None
+        inc = ImuIncrement(self._dtheta.copy(), self._dvel.copy(), self._dt)
+        self._dtheta[:] = 0.0
+        self._dvel[:] = 0.0
+        self._dt = 0.0
+        return s.t_s, inc
+
+
+class AutopilotClock:
+    """Filter time = autopilot boot time + an epoch that grows at each autopilot reboot, so the filter's
+    clock never runs backwards and its state (wind, biases, corrections) survives the reboot."""
+
+    def __init__(self) -> None:
+        self.epoch_s = 0.0
+        self.reboots = 0
+        self._last_boot_s = -math.inf
+        self.offset_s: float | None = None  # autopilot boot time − local monotonic time, from TIMESYNC
+        self.rtt_s: float | None = None
+
+    def observe_boot_s(self, boot_s: float) -> bool:
+        """The boot time of a frequent stream (the IMU); True when it shows a reboot."""
+        rebooted = boot_s < self._last_boot_s - REBOOT_BACKSTEP_S
+        if rebooted:
+            self.epoch_s += self._last_boot_s - boot_s + 1e-3
+            self.reboots += 1
+            self.offset_s = None
+        self._last_boot_s = max(boot_s, self._last_boot_s) if not rebooted else boot_s
+        return rebooted
+
+    def filter_s(self, boot_s: float) -> float:
+        return boot_s + self.epoch_s
+
+    def boot_s(self, filter_s: float) -> float:
+        return filter_s - self.epoch_s
+
+    def timesync(self, tc1_ns: int, ts1_ns: int, now_ns: int) -> None:
+        """A TIMESYNC reply to our request sent at local ``ts1_ns``, received at ``now_ns``."""
+        rtt = (now_ns - ts1_ns) * 1e-9
+        if not 0.0 <= rtt < 1.0:
+            return  # not ours, or stale
+        offset = tc1_ns * 1e-9 - 0.5 * (ts1_ns + now_ns) * 1e-9
+        if self.offset_s is None or self.rtt_s is None or rtt <= 2.0 * self.rtt_s:
+            self.offset_s = offset if self.offset_s is None else self.offset_s + 0.2 * (offset - self.offset_s)
+            self.rtt_s = rtt if self.rtt_s is None else self.rtt_s + 0.2 * (rtt - self.rtt_s)

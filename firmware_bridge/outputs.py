@@ -1,0 +1,142 @@
+"""SI navigation solution → MAVLink: the output side of the units boundary.
+
+**Back to the autopilot, during a GNSS outage** (:class:`SolutionOut`):
+
+* ArduPilot: ``GPS_INPUT`` into a ``GPSn_TYPE = 14`` (MAVLink) instance. ``time_week``/``time_week_ms``
+  are filled from UTC (GPS time = UTC + :data:`GPS_LEAP_S`), the fix type follows the filter's health, the
+  accuracies are the filter's 1σ inflated by :func:`inflation` (below). Optionally
+  ``MAV_CMD_EXTERNAL_WIND_ESTIMATE`` (43004) with the held wind.
+* PX4: ``GLOBAL_POSITION_SENSOR`` (296, auxiliary global position, EKF2_AGP_*) or ``ODOMETRY``
+  (EKF2_EV_*, position in the local NED frame of our origin).
+
+**Inflation.** The autopilot's EKF fuses every message as an independent measurement, but our errors are
+not independent: during an outage the solution drifts slowly (its error at 5 Hz is the same error five
+times a second), and it integrates the same IMU the autopilot's EKF already fuses. Sent with its own σ,
+the autopilot would count that information ``rate × τ`` times (τ ≈ 1 s, the autopilot's innovation
+smoothing) and the IMU twice. The σ sent is therefore σ·√(2·rate·τ): over τ, the autopilot then gains no
+more information from us than our own covariance holds.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from firmware_bridge.endpoint import MavlinkMessage
+from vdm_aero._typing import F64Array
+
+__all__ = ["GPS_LEAP_S", "Solution", "gps_week_time", "inflation"]
+
+GPS_EPOCH_UNIX_S = 315964800  # 1980-01-06T00:00:00Z
+GPS_LEAP_S = 18  # GPS − UTC since 2017-01-01 (no leap second announced since)
+SECONDS_PER_WEEK = 604800
+MAV_CMD_EXTERNAL_WIND_ESTIMATE = 43004  # MAVLink common (ArduPilot 4.5+); not in every pymavlink release
+EKF_SMOOTHING_S = 1.0
+# GPS_INPUT ignore flags: we send no HDOP/VDOP-derived fields beyond the accuracies
+GPS_INPUT_IGNORE = mavlink2.GPS_INPUT_IGNORE_FLAG_HDOP | mavlink2.GPS_INPUT_IGNORE_FLAG_VDOP
+
+
+def gps_week_time(unix_s: float) -> tuple[int, int]:
+    """UTC [s since 1970] → (GPS week, ms of the week)."""
+    gps_s = unix_s - GPS_EPOCH_UNIX_S + GPS_LEAP_S
+    week = int(gps_s // SECONDS_PER_WEEK)
+    return week, round((gps_s - week * SECONDS_PER_WEEK) * 1e3) % (SECONDS_PER_WEEK * 1000)
+
+
+def inflation(rate_hz: float) -> float:
+    """The factor on the σ sent to the autopilot (module docstring)."""
+    return math.sqrt(max(2.0 * rate_hz * EKF_SMOOTHING_S, 1.0))
+
+
+@dataclass(frozen=True)
+class Solution:
+    """The navigation solution at ``boot_s`` (autopilot time), SI, with 1σ uncertainties."""
+
+    boot_s: float
+    unix_s: float
+    lat_deg: float
+    lon_deg: float
+    alt_m: float
+    p_ned_m: F64Array
+    v_ned_m_s: F64Array
+    q_nb: F64Array
+    sigma_h_m: float
+    sigma_v_m: float
+    sigma_vel_m_s: float
+    wind_ned_m_s: F64Array
+    sigma_wind_m_s: float
+    fix_type: int  # from the filter's health: 3 (3-D), 2 (degraded), 0 (no solution)
+
+
+def fix_type_from(sigma_h_m: float, *, healthy: bool, max_sigma_3d_m: float, max_sigma_m: float) -> int:
+    """3-D fix while the horizontal 1σ is under ``max_sigma_3d_m``; 2-D up to ``max_sigma_m``; else none."""
+    if not healthy or not math.isfinite(sigma_h_m) or sigma_h_m > max_sigma_m:
+        return mavlink2.GPS_FIX_TYPE_NO_FIX
+    return mavlink2.GPS_FIX_TYPE_3D_FIX if sigma_h_m <= max_sigma_3d_m else mavlink2.GPS_FIX_TYPE_2D_FIX
+
+
+def gps_input(mav: mavlink2.MAVLink, s: Solution, *, gps_id: int, k: float) -> MavlinkMessage:
+    """GPS_INPUT (ArduPilot ``GPS_TYPE = 14``): degE7, m, m/s, accuracies [m, m/s] inflated by ``k``."""
+    week, week_ms = gps_week_time(s.unix_s)
+    return mav.gps_input_encode(
+        round(s.boot_s * 1e6),
+        gps_id,
+        GPS_INPUT_IGNORE,
+        week_ms,
+        week,
+        s.fix_type,
+        round(s.lat_deg * 1e7),
+        round(s.lon_deg * 1e7),
+        s.alt_m,
+        0.0,
+        0.0,
+        *(float(v) for v in s.v_ned_m_s),
+        k * s.sigma_vel_m_s,
+        k * s.sigma_h_m,
+        k * s.sigma_v_m,
+        0,  # satellites: none, the solution is dead-reckoned
+    )
+
+
+def global_position_sensor(mav: mavlink2.MAVLink, s: Solution, *, target: tuple[int, int], k: float
+                           ) -> MavlinkMessage:  # fmt: skip
+    """GLOBAL_POSITION_SENSOR (296, PX4 auxiliary global position): degE7, m AMSL, eph/epv [m]."""
+    return mav.global_position_sensor_encode(
+        target[0], target[1], 0, round(s.boot_s * 1e6), 0, 0, 0,
+        round(s.lat_deg * 1e7), round(s.lon_deg * 1e7), math.nan, s.alt_m, k * s.sigma_h_m, k * s.sigma_v_m,
+    )  # fmt: skip
+
+
+def odometry(mav: mavlink2.MAVLink, s: Solution, *, k: float) -> MavlinkMessage:
+    """ODOMETRY in MAV_FRAME_LOCAL_NED of our origin (PX4 EKF2_EV_*), with diagonal covariances."""
+    nan21 = [math.nan] * 21
+    pose_cov = list(nan21)
+    pose_cov[0] = pose_cov[6] = (k * s.sigma_h_m) ** 2  # upper-triangle row-major: (0,0), (1,1), (2,2)
+    pose_cov[11] = (k * s.sigma_v_m) ** 2
+    vel_cov = list(nan21)
+    vel_cov[0] = vel_cov[6] = vel_cov[11] = (k * s.sigma_vel_m_s) ** 2
+    return mav.odometry_encode(
+        round(s.boot_s * 1e6), mavlink2.MAV_FRAME_LOCAL_NED, mavlink2.MAV_FRAME_BODY_FRD,
+        *(float(v) for v in s.p_ned_m), [float(v) for v in s.q_nb], *(float(v) for v in s.v_ned_m_s),
+        math.nan, math.nan, math.nan, pose_cov, vel_cov, 0, mavlink2.MAV_ESTIMATOR_TYPE_VIO, 0,
+    )  # fmt: skip
+
+
+def external_wind(mav: mavlink2.MAVLink, s: Solution, *, target: tuple[int, int]) -> MavlinkMessage:
+    """MAV_CMD_EXTERNAL_WIND_ESTIMATE: speed [m/s] and its 1σ, direction the wind comes from [deg] and 1σ."""
+    wn, we = float(s.wind_ned_m_s[0]), float(s.wind_ned_m_s[1])
+    speed = math.hypot(wn, we)
+    from_deg = math.degrees(math.atan2(-we, -wn)) % 360.0
+    dir_sigma = math.degrees(s.sigma_wind_m_s / max(speed, 0.5))
+    return mav.command_long_encode(target[0], target[1], MAV_CMD_EXTERNAL_WIND_ESTIMATE, 0,
+                                   speed, s.sigma_wind_m_s, from_deg, min(dir_sigma, 180.0), 0, 0, 0)  # fmt: skip
+
+
+def named_values(mav: mavlink2.MAVLink, boot_s: float, values: dict[str, float]) -> list[MavlinkMessage]:
+    """NAMED_VALUE_FLOAT per entry (names ≤ 10 ASCII characters), all stamped ``boot_s``."""
+    ms = int(boot_s * 1e3) & 0xFFFFFFFF
+    return [mav.named_value_float_encode(ms, n.encode("ascii"), float(v)) for n, v in values.items()
+            if np.isfinite(v)]  # fmt: skip

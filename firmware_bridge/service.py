@@ -1,0 +1,525 @@
+"""``vdm-aero serve``: the companion service.
+
+One thread, one loop: read what the link delivers, convert it to SI once (:mod:`firmware_bridge.units`),
+hand it to the same :class:`~vdm_aero.nav.driver.NavDriver` the log replay and the drift benchmark use, and
+do the periodic work: HEARTBEAT (1 Hz), TIMESYNC, stream requests (re-sent while a stream is missing, so an
+autopilot reboot or a lost command heals itself), outputs, the status line, the state file and the
+systemd watchdog.
+
+Bad input never stops the service: malformed frames are counted by the codec, a message whose handling
+fails is counted and logged (its type and the error, rate-limited) and skipped, and a diverged filter
+(non-finite state) is re-initialised at the next fix. Only a bad configuration or unreadable models stop it,
+at start, with exit code 2.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+import traceback
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, TextIO
+
+import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from firmware_bridge import outputs, units
+from firmware_bridge.config import ServiceConfig
+from firmware_bridge.endpoint import MavEndpoint, MavlinkMessage, load_signing_key
+from firmware_bridge.inputs import AutopilotClock, ImuIntegrator, PortAssembler, PortFrameIn
+from firmware_bridge.persist import FilterStateStore, NavLog
+from firmware_bridge.sd_notify import SdNotify
+from firmware_bridge.transport import open_transport
+from vdm_aero.errors import UserInputError
+from vdm_aero.geodesy import LocalFrame
+from vdm_aero.nav.driver import NavDriver
+from vdm_aero.nav.filter import NavConfig, NavFilter
+from vdm_aero.nav.models import NavModels
+from vdm_aero.nav.ports_frontend import PortFrame, PortFrontEnd
+from vdm_aero.nav.state import IDX
+from vdm_aero.rotation import euler_from_quat
+
+__all__ = ["CompanionService", "ServiceStats"]
+
+HEARTBEAT_S = 1.0
+TIMESYNC_S = 2.0
+STREAM_CHECK_S = 3.0
+STREAM_MIN_FRACTION = 0.5  # a stream arriving at under half its requested rate is requested again
+AUTOPILOT_LOST_S = 3.0  # no autopilot HEARTBEAT this long: the link is down
+POLL_MAX_S = 0.02
+ERROR_LOG_EVERY_S = 10.0
+LATENCY_WINDOW = 20000
+AUTOPILOT_COMPONENT = mavlink2.MAV_COMP_ID_AUTOPILOT1
+
+
+@dataclass
+class ServiceStats:
+    """Counters for the status line, the journal and the tests."""
+
+    received: dict[str, int] = field(default_factory=dict)
+    handler_errors: dict[str, int] = field(default_factory=dict)
+    stream_requests: int = 0
+    command_acks: dict[str, int] = field(default_factory=dict)
+    solutions_sent: int = 0
+    named_values_sent: int = 0
+    filter_resets: int = 0
+    restored: list[str] = field(default_factory=list)
+    latency_s: deque[float] = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))
+
+    def latency_percentiles_ms(self) -> dict[str, float]:
+        if not self.latency_s:
+            return {"p50": math.nan, "p99": math.nan, "max": math.nan, "n": 0}
+        a = np.asarray(self.latency_s) * 1e3
+        return {"p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99)), "max": float(a.max()),
+                "n": len(a)}  # fmt: skip
+
+
+class CompanionService:
+    """The service: ``run(should_stop)`` until ``should_stop()`` is true; see the module docstring."""
+
+    def __init__(self, cfg: ServiceConfig, *, notify: SdNotify | None = None, out: TextIO = sys.stdout,
+                 watchdog_s: float | None = None, models: NavModels | None = None) -> None:  # fmt: skip
+        self.cfg = cfg
+        self.out = out
+        self.notify = notify or SdNotify(None)
+        self.watchdog_s = watchdog_s
+        self.models = models or NavModels.load(cfg.design_data, cfg.deim_model, cfg.nn_model, cfg.vehicle)
+        names = cfg.ports.names or self.models.port_names
+        if set(names) != set(self.models.port_names):
+            raise UserInputError(f"{cfg.path}: ports.names {list(names)} are not the model's ports "
+                                 f"{list(self.models.port_names)}")  # fmt: skip
+        self.port_names = tuple(names)
+        self._port_order = np.array([self.port_names.index(n) for n in self.models.port_names])
+        signing = None
+        if cfg.signing_key_file is not None:
+            signing = load_signing_key(cfg.signing_key_file, require=cfg.signing_require)
+        self.store = FilterStateStore(cfg.state_file)
+        self._saved = self.store.load()
+        self.transport = open_transport(cfg.connection)
+        self.ep = MavEndpoint(self.transport, system_id=cfg.system_id, component_id=cfg.component_id,
+                              signing=signing)  # fmt: skip
+        self.navlog = (NavLog(cfg.nav_log_file, max_bytes=cfg.nav_log_max_bytes, backups=cfg.nav_log_backups)
+                       if cfg.nav_log_file is not None else None)  # fmt: skip
+        self.stats = ServiceStats()
+        self.clock = AutopilotClock()
+        self.imu_int = ImuIntegrator(cfg.filter_rate_hz)
+        self.assembler = PortAssembler(self.port_names, timeout_s=cfg.ports.frame_timeout_s)
+        self.frame: LocalFrame | None = None
+        self.driver: NavDriver | None = None
+        self.filter: NavFilter | None = None
+        self.autopilot: tuple[int, int] | None = None
+        self._last_ap_heartbeat = -math.inf
+        self._unix_minus_boot_s: float | None = None
+        self._last_pitot_dp = math.nan
+        self._last_baro_ms = -1
+        self._last_gps_us = -1
+        self._boot_now_s = -math.inf  # the autopilot's time of the latest IMU sample
+        self._stream_seen: dict[str, int] = dict.fromkeys(cfg.streams, 0)
+        self._next: dict[str, float] = {}
+        self._next_ap: dict[str, float] = {}
+        self._error_logged: dict[str, float] = {}
+        self._inflation = outputs.inflation(cfg.outputs.solution_hz)
+        self._handlers: dict[str, Callable[[MavlinkMessage, float], None]] = {
+            "HEARTBEAT": self._on_heartbeat,
+            "HIGHRES_IMU": self._on_highres_imu,
+            "SCALED_IMU": self._on_scaled_imu,
+            "SCALED_PRESSURE": self._on_scaled_pressure,
+            "GPS_RAW_INT": self._on_gps_raw_int,
+            "SERVO_OUTPUT_RAW": self._on_servo_output_raw,
+            "NAMED_VALUE_FLOAT": self._on_named_value_float,
+            "DEBUG_FLOAT_ARRAY": self._on_debug_float_array,
+            "SYSTEM_TIME": self._on_system_time,
+            "TIMESYNC": self._on_timesync,
+            "COMMAND_ACK": self._on_command_ack,
+        }
+
+    # ---------------------------------------------------------------------------------------- loop
+    def run(self, should_stop: Callable[[], bool]) -> dict[str, Any]:
+        """Serve until ``should_stop()``; saves the state and returns the final summary."""
+        self.notify.notify(ready=1, status=f"listening on {self.transport.description}")
+        self._print(f"vdm-aero serve: {self.cfg.mode} on {self.transport.description}, {len(self.port_names)} "
+                    f"ports via {self.cfg.ports.source}, solution output {self.cfg.outputs.solution}")  # fmt: skip
+        try:
+            while not should_stop():
+                now = time.monotonic()
+                timeout = max(min(POLL_MAX_S, min(self._next.values(), default=now) - now), 0.0)
+                msgs = self.ep.poll(timeout)
+                t_in = time.monotonic()
+                for msg in msgs:
+                    self._dispatch(msg, t_in)
+                self._periodic(time.monotonic())
+        finally:
+            self.notify.notify(stopping=1, status="saving the filter state")
+            self._save_state()
+            if self.navlog is not None:
+                self.navlog.close()
+            self.transport.close()
+        return self.summary()
+
+    def _dispatch(self, msg: MavlinkMessage, t_in: float) -> None:
+        kind = msg.get_type()
+        self.stats.received[kind] = self.stats.received.get(kind, 0) + 1
+        handler = self._handlers.get(kind)
+        if handler is None:
+            return
+        try:
+            handler(msg, t_in)
+        except Exception as e:  # noqa: BLE001 - one bad message must not stop navigation; counted and logged
+            self.stats.handler_errors[kind] = self.stats.handler_errors.get(kind, 0) + 1
+            now = time.monotonic()
+            if now - self._error_logged.get(kind, -math.inf) > ERROR_LOG_EVERY_S:
+                self._error_logged[kind] = now
+                where = traceback.extract_tb(e.__traceback__)[-1]
+                self._print(f"vdm-aero serve: {kind} skipped: {type(e).__name__}: {e} "
+                            f"({where.filename.rsplit('/', 1)[-1]}:{where.lineno}); "
+                            f"{self.stats.handler_errors[kind]} so far")  # fmt: skip
+
+    def _from_autopilot(self, msg: MavlinkMessage) -> bool:
+        return self.autopilot is not None and msg.get_srcSystem() == self.autopilot[0]
+
+    def _due(self, key: str, now: float, period_s: float) -> bool:
+        """Periodic work on the local clock (link upkeep, status, watchdog)."""
+        if now < self._next.get(key, -math.inf):
+            return False
+        self._next[key] = now + period_s
+        return True
+
+    def _due_ap(self, key: str, period_s: float) -> bool:
+        """Periodic outputs on the autopilot's clock: their rates hold in faster-than-real-time SITL too."""
+        t = self._boot_now_s
+        if not math.isfinite(t):
+            return False
+        nxt = self._next_ap.get(key, -math.inf)
+        if nxt - t > 2.0 * period_s:  # the autopilot's clock went back (a reboot)
+            nxt = -math.inf
+        if t < nxt:
+            return False
+        self._next_ap[key] = t + period_s - 1e-6
+        return True
+
+    # ----------------------------------------------------------------------------------- handlers
+    def _on_heartbeat(self, msg: MavlinkMessage, t_in: float) -> None:
+        if msg.type in (mavlink2.MAV_TYPE_GCS, mavlink2.MAV_TYPE_ONBOARD_CONTROLLER) or msg.autopilot == (
+            mavlink2.MAV_AUTOPILOT_INVALID
+        ):
+            return
+        if msg.get_srcSystem() != self.cfg.system_id:
+            return
+        src = (msg.get_srcSystem(), msg.get_srcComponent())
+        if self.autopilot != src or t_in - self._last_ap_heartbeat > AUTOPILOT_LOST_S:
+            self._print(f"vdm-aero serve: autopilot {src[0]}/{src[1]} heard; requesting streams")
+            self.autopilot = src
+            self._next.pop("streams", None)  # request the streams now (a new or rebooted autopilot)
+        self._last_ap_heartbeat = t_in
+
+    def _imu(self, s: units.ImuSample) -> None:
+        if self.clock.observe_boot_s(s.t_s):
+            self._print(f"vdm-aero serve: autopilot reboot (boot time {s.t_s:.1f} s); re-requesting streams")
+            self.imu_int.reset()
+            self._next.pop("streams", None)
+            self._last_baro_ms = self._last_gps_us = -1
+        self._boot_now_s = s.t_s
+        if s.mag_b_ut is not None and self.driver is not None:
+            self.driver.mag(self.clock.filter_s(s.t_s), s.mag_b_ut)
+        step = self.imu_int.add(s)
+        if step is not None and self.driver is not None:
+            t_end, inc = step
+            self.driver.imu(self.clock.filter_s(t_end), inc, s.temperature_c)
+            self._check_finite()
+
+    def _on_highres_imu(self, msg: MavlinkMessage, t_in: float) -> None:
+        if self._from_autopilot(msg):
+            self._stream_seen["HIGHRES_IMU"] = self._stream_seen.get("HIGHRES_IMU", 0) + 1
+            self._imu(units.from_highres_imu(msg))
+
+    def _on_scaled_imu(self, msg: MavlinkMessage, t_in: float) -> None:
+        if self._from_autopilot(msg) and "HIGHRES_IMU" not in self.cfg.streams:
+            self._stream_seen["SCALED_IMU"] = self._stream_seen.get("SCALED_IMU", 0) + 1
+            self._imu(units.from_scaled_imu(msg))
+
+    def _on_scaled_pressure(self, msg: MavlinkMessage, t_in: float) -> None:
+        if not self._from_autopilot(msg):
+            return
+        self._stream_seen["SCALED_PRESSURE"] = self._stream_seen.get("SCALED_PRESSURE", 0) + 1
+        if msg.time_boot_ms == self._last_baro_ms:
+            return  # the same sample again (the stream runs faster than the sensor)
+        self._last_baro_ms = msg.time_boot_ms
+        s = units.from_scaled_pressure(msg)
+        self._last_pitot_dp = s.pitot_dp_pa
+        if self.driver is None:
+            return
+        t = self.clock.filter_s(s.t_s)
+        self.driver.baro(t, s.static_pa)
+        if math.isfinite(s.pitot_dp_pa):
+            self.driver.pitot(t, s.pitot_dp_pa)
+
+    def _on_gps_raw_int(self, msg: MavlinkMessage, t_in: float) -> None:
+        if not self._from_autopilot(msg):
+            return
+        self._stream_seen["GPS_RAW_INT"] = self._stream_seen.get("GPS_RAW_INT", 0) + 1
+        fix = units.from_gps_raw_int(msg)
+        if fix is None or msg.time_usec == self._last_gps_us or not math.isfinite(self._boot_now_s):
+            return
+        self._last_gps_us = msg.time_usec
+        if self.frame is None:  # the first 3-D fix sets the local origin; the next ones initialise the filter
+            self._start_filter(fix)
+            return
+        assert self.driver is not None
+        p = self.frame.to_ned(fix.lat_deg, fix.lon_deg, fix.alt_m)
+        t_valid = self.clock.filter_s(fix.t_valid_s)
+        t_now = max(self.clock.filter_s(self._boot_now_s), t_valid)
+        was = self.filter is not None and self.filter.initialised
+        self.driver.gnss(t_valid, t_now, np.asarray(p, dtype=np.float64).reshape(3), fix.v_ned_m_s)
+        if not was and self.filter is not None and self.filter.initialised and self._saved is not None:
+            self.stats.restored = FilterStateStore.restore(self.filter, self._saved)
+            self._saved = None
+            self._print(f"vdm-aero serve: restored {', '.join(self.stats.restored)} from {self.store.path}")
+
+    def _start_filter(self, fix: units.GnssFix) -> None:
+        m = self.models
+        self.frame = LocalFrame(fix.lat_deg, fix.lon_deg, fix.alt_m)
+        cfg = NavConfig(vehicle=m.vehicle, origin_alt_m=fix.alt_m, filter_rate_hz=self.cfg.filter_rate_hz,
+                        mag_field_ned_ut=np.asarray(self.cfg.mag_field_ned_ut))  # fmt: skip
+        self.filter = NavFilter(self.cfg.mode, cfg, m.derivatives)
+        fe = PortFrontEnd(m.pressure_model, dict(m.models), range_pa=self.cfg.ports.range_pa,
+                          noise_pa=self.cfg.ports.noise_pa)  # fmt: skip
+        self.driver = NavDriver({self.cfg.mode: self.filter}, fe)
+        self._print(f"vdm-aero serve: origin {fix.lat_deg:.7f}, {fix.lon_deg:.7f}, {fix.alt_m:.1f} m")
+
+    def _check_finite(self) -> None:
+        f = self.filter
+        if f is None or f.x is None:
+            return
+        if not (np.all(np.isfinite(f.x.p_ned)) and np.all(np.isfinite(f.x.v_ned)) and np.all(np.isfinite(f.P))):
+            self.stats.filter_resets += 1
+            self._print("vdm-aero serve: the filter diverged (non-finite state); re-initialising at the next fix")
+            f.x = None
+            f.engine = None
+
+    def _on_servo_output_raw(self, msg: MavlinkMessage, t_in: float) -> None:
+        if not self._from_autopilot(msg) or self.driver is None or not math.isfinite(self._boot_now_s):
+            return
+        self._stream_seen["SERVO_OUTPUT_RAW"] = self._stream_seen.get("SERVO_OUTPUT_RAW", 0) + 1
+        s = units.from_servo_output_raw(msg)
+        ail, ele, rud, thr = self.models.vehicle.servos.deflections_rad(s.pwm_us[None, :4])
+        controls = np.array([ail[0], ele[0], rud[0]])
+        # SERVO_OUTPUT_RAW's uint32 µs clock wraps after 71 min: the outputs apply now
+        self.driver.servo(self.clock.filter_s(self._boot_now_s), controls, float(thr[0]))
+
+    def _on_named_value_float(self, msg: MavlinkMessage, t_in: float) -> None:
+        if self.cfg.ports.source != "named_value_float" or not self._from_autopilot(msg):
+            return
+        name = msg.name.rstrip("\0") if isinstance(msg.name, str) else msg.name.decode("ascii", "replace")
+        for fr in self.assembler.add(int(msg.time_boot_ms), name.rstrip("\0"), float(msg.value), t_in):
+            self._port_frame(fr)
+
+    def _on_debug_float_array(self, msg: MavlinkMessage, t_in: float) -> None:
+        if self.cfg.ports.source != "debug_float_array" or not self._from_autopilot(msg):
+            return
+        if msg.array_id != self.cfg.ports.debug_array_id:
+            return
+        n = len(self.port_names)
+        data = np.asarray(msg.data[:n], dtype=np.float64)
+        self._port_frame(PortFrameIn(msg.time_usec * 1e-6, data, True, t_in))
+
+    def _port_frame(self, fr: PortFrameIn) -> None:
+        if self.driver is None:
+            return
+        dp = fr.dp_pa[self._port_order]
+        qbar = None
+        if self.cfg.ports.dynamic_pressure == "pitot" and math.isfinite(self._last_pitot_dp):
+            qbar = self._last_pitot_dp
+        solved = self.driver.ports(self.clock.filter_s(fr.t_s), dp, qbar)
+        if solved is None:
+            return
+        now = time.monotonic()
+        self._outputs(solved, now)
+        self.stats.latency_s.append(time.monotonic() - fr.arrived_at)
+
+    def _on_system_time(self, msg: MavlinkMessage, t_in: float) -> None:
+        if self._from_autopilot(msg) and msg.time_unix_usec > 0:
+            self._unix_minus_boot_s = msg.time_unix_usec * 1e-6 - msg.time_boot_ms * 1e-3
+
+    def _on_timesync(self, msg: MavlinkMessage, t_in: float) -> None:
+        if msg.tc1 != 0 and self._from_autopilot(msg):
+            self.clock.timesync(int(msg.tc1), int(msg.ts1), time.monotonic_ns())
+
+    def _on_command_ack(self, msg: MavlinkMessage, t_in: float) -> None:
+        key = f"{msg.command}:{msg.result}"
+        self.stats.command_acks[key] = self.stats.command_acks.get(key, 0) + 1
+
+    # ------------------------------------------------------------------------------------ outputs
+    def solution(self) -> outputs.Solution | None:
+        """The current navigation solution (None before the filter is initialised)."""
+        f = self.filter
+        if f is None or f.x is None or self.frame is None or not math.isfinite(self._boot_now_s):
+            return None
+        x = f.x
+        lat, lon, alt = self.frame.to_geodetic(float(x.p_ned[0]), float(x.p_ned[1]), float(x.p_ned[2]))
+        p = f.P
+        sig_h = f.horizontal_sigma_m()
+        w = IDX["wind"]
+        wind_var = float(np.max(np.linalg.eigvalsh(p[w, w][:2, :2])))
+        unix = (self._unix_minus_boot_s + self._boot_now_s) if self._unix_minus_boot_s is not None else time.time()
+        o = self.cfg.outputs
+        fix = outputs.fix_type_from(sig_h, healthy=True, max_sigma_3d_m=o.max_sigma_3d_m, max_sigma_m=o.max_sigma_m)
+        return outputs.Solution(
+            boot_s=self._boot_now_s, unix_s=unix, lat_deg=lat, lon_deg=lon, alt_m=alt, p_ned_m=x.p_ned.copy(),
+            v_ned_m_s=x.v_ned.copy(), q_nb=x.q_nb.copy(), sigma_h_m=sig_h, sigma_v_m=math.sqrt(max(p[2, 2], 0.0)),
+            sigma_vel_m_s=math.sqrt(max(float(np.max(np.diag(p)[3:6])), 0.0)), wind_ned_m_s=x.wind_ned.copy(),
+            sigma_wind_m_s=math.sqrt(max(wind_var, 0.0)), fix_type=fix,
+        )  # fmt: skip
+
+    def _outputs(self, frame: PortFrame, now: float) -> None:
+        o = self.cfg.outputs
+        if o.named_values_hz > 0 and self._due_ap("named", 1.0 / o.named_values_hz):
+            self._send_named_values(frame)
+
+    def _send_named_values(self, frame: PortFrame) -> None:
+        f = self.filter
+        pre = self.cfg.outputs.prefix + "_"
+        vals: dict[str, float] = {}
+        model = (f.spec.force if f is not None and f.spec.force in frame.coeffs else None) or next(iter(frame.coeffs),
+                                                                                                    None)  # fmt: skip
+        if model is not None and math.isfinite(frame.qbar_pa):
+            s_ref = self.models.vehicle.reference.area_m2
+            fx, fy, fz = (float(v) * frame.qbar_pa * s_ref for v in frame.coeffs[model][:3])
+            vals.update({pre + "FX": fx, pre + "FY": fy, pre + "FZ": fz})
+        if frame.airdata is not None:
+            vals.update({pre + "TAS": float(frame.airdata[0]), pre + "AOA": float(frame.airdata[1]),
+                         pre + "SSA": float(frame.airdata[2])})  # fmt: skip
+        if f is not None and f.x is not None:
+            vals.update({pre + "WN": float(f.x.wind_ned[0]), pre + "WE": float(f.x.wind_ned[1]),
+                         pre + "SIGH": f.horizontal_sigma_m()})  # fmt: skip
+        vals[pre + "HLTH"] = float(self._health_code())
+        for m in outputs.named_values(self.ep.mav, self._boot_now_s, vals):
+            self.ep.send(m)
+            self.stats.named_values_sent += 1
+
+    def _health_code(self) -> int:
+        """Bit field: 1 initialised, 2 GNSS outage, 4 fallback (no port air data), 8 ports missing."""
+        f = self.filter
+        if f is None or not f.initialised:
+            return 0
+        ok, n = f.port_health
+        return 1 | (2 if f.in_outage else 0) | (4 if f.fallback else 0) | (8 if ok < n else 0)
+
+    def _send_solution(self, now: float) -> None:
+        o = self.cfg.outputs
+        f = self.filter
+        if o.solution == "none" or f is None or not f.initialised or not f.in_outage or self.autopilot is None:
+            return
+        if not self._due_ap("solution", 1.0 / o.solution_hz):
+            return
+        s = self.solution()
+        if s is None:
+            return
+        k = self._inflation
+        if o.solution == "gps_input":
+            self.ep.send(outputs.gps_input(self.ep.mav, s, gps_id=o.gps_id, k=k))
+            if o.external_wind and self._due_ap("wind", 1.0):
+                self.ep.send(outputs.external_wind(self.ep.mav, s, target=self.autopilot))
+        elif o.solution == "global_position_sensor":
+            self.ep.send(outputs.global_position_sensor(self.ep.mav, s, target=self.autopilot, k=k))
+        else:
+            self.ep.send(outputs.odometry(self.ep.mav, s, k=k))
+        self.stats.solutions_sent += 1
+
+    # ----------------------------------------------------------------------------------- periodic
+    def _periodic(self, now: float) -> None:
+        if (fr := self.assembler.expire(now)) is not None:
+            self._port_frame(fr)
+        if self._due("heartbeat", now, HEARTBEAT_S):
+            hb = self.ep.mav.heartbeat_encode(mavlink2.MAV_TYPE_ONBOARD_CONTROLLER, mavlink2.MAV_AUTOPILOT_INVALID,
+                                              0, 0, mavlink2.MAV_STATE_ACTIVE)  # fmt: skip
+            self.ep.send(hb)
+        if self.autopilot is not None and now - self._last_ap_heartbeat < AUTOPILOT_LOST_S:
+            if self._due("timesync", now, TIMESYNC_S):
+                self.ep.send(self.ep.mav.timesync_encode(0, time.monotonic_ns()))
+            if self._due("streams", now, STREAM_CHECK_S):
+                self._request_streams()
+        self._send_solution(now)
+        if self.navlog is not None and self._due_ap("navlog", 1.0 / self.cfg.nav_log_hz):
+            self._log_solution()
+        if self._due("status", now, self.cfg.status_every_s):
+            line = self.status_line()
+            self._print(line)
+            self.notify.notify(status=line)
+        if self.watchdog_s is not None and self._due("watchdog", now, 0.5 * self.watchdog_s):
+            self.notify.notify(watchdog=1)
+        if self._due("save", now, self.cfg.state_save_every_s):
+            self._save_state()
+
+    def _request_streams(self) -> None:
+        """SET_MESSAGE_INTERVAL for every configured stream that is missing or slow since the last check."""
+        assert self.autopilot is not None
+        for name, hz in self.cfg.streams.items():
+            seen = self._stream_seen.get(name, 0)
+            self._stream_seen[name] = 0
+            if hz > 0 and seen >= STREAM_MIN_FRACTION * hz * STREAM_CHECK_S:
+                continue
+            msg_id = getattr(mavlink2, f"MAVLINK_MSG_ID_{name}")
+            interval_us = 1e6 / hz if hz > 0 else -1
+            self.ep.send(self.ep.mav.command_long_encode(self.autopilot[0], self.autopilot[1],
+                                                         mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, 0, msg_id,
+                                                         interval_us, 0, 0, 0, 0, 0))  # fmt: skip
+            self.stats.stream_requests += 1
+
+    def _log_solution(self) -> None:
+        s = self.solution()
+        f = self.filter
+        if s is None or f is None or self.navlog is None:
+            return
+        roll, pitch, yaw = euler_from_quat(s.q_nb)
+        self.navlog.write([s.unix_s, s.boot_s, s.lat_deg, s.lon_deg, s.alt_m, *map(float, s.p_ned_m),
+                           *map(float, s.v_ned_m_s), roll, pitch, yaw, s.sigma_h_m, float(s.wind_ned_m_s[0]),
+                           float(s.wind_ned_m_s[1]), "outage" if f.in_outage else "aided", f.mode])  # fmt: skip
+
+    def _save_state(self) -> None:
+        if self.filter is not None:
+            self.store.save(self.filter)
+
+    # ------------------------------------------------------------------------------------- status
+    def status_line(self) -> str:
+        f = self.filter
+        if f is None or not f.initialised:
+            ap = "autopilot heard" if self.autopilot else "waiting for the autopilot"
+            return f"status: {ap}, filter not initialised (no GNSS fix yet); {sum(self.stats.received.values())} msgs"
+        h = f.health()
+        x = f.x
+        assert x is not None
+        wind = math.hypot(float(x.wind_ned[0]), float(x.wind_ned[1]))
+        lat = self.stats.latency_percentiles_ms()
+        fb = f", FALLBACK {h['fallback']}" if h["fallback"] else ""
+        return (f"status: {h['mode']} gnss={h['gnss']} ports {h['ports_ok']}/{h['ports']}{fb} "
+                f"σh={h['horizontal_sigma_m']:.1f} m wind={wind:.1f} m/s frames {self.assembler.counts['complete']}"
+                f"+{self.assembler.counts['partial']} partial, rejected unsigned {self.ep.rejected_unsigned}, "
+                f"bad frames {self.ep.bad_frames}, errors {sum(self.stats.handler_errors.values())}, "
+                f"latency p99 {lat['p99']:.2f} ms")  # fmt: skip
+
+    def summary(self) -> dict[str, Any]:
+        f = self.filter
+        return {
+            "received": dict(self.stats.received),
+            "sent": dict(self.ep.sent),
+            "handler_errors": dict(self.stats.handler_errors),
+            "rejected_unsigned": self.ep.rejected_unsigned,
+            "bad_frames": self.ep.bad_frames,
+            "port_frames": dict(self.assembler.counts),
+            "stream_requests": self.stats.stream_requests,
+            "solutions_sent": self.stats.solutions_sent,
+            "named_values_sent": self.stats.named_values_sent,
+            "filter_resets": self.stats.filter_resets,
+            "autopilot_reboots": self.clock.reboots,
+            "restored": list(self.stats.restored),
+            "state_saves": self.store.saves,
+            "latency_ms": self.stats.latency_percentiles_ms(),
+            "timesync_offset_s": self.clock.offset_s,
+            "health": f.health() if f is not None else None,
+        }
+
+    def _print(self, line: str) -> None:
+        print(line, file=self.out, flush=True)

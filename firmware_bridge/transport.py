@@ -1,0 +1,300 @@
+"""Byte transports of the companion service, named by one URL string (as MAVSDK does).
+
+==========================================  ===============================================================
+``serial:///dev/ttyAMA0:921600``            a UART (pyserial); reopened with backoff when the device goes away
+``udpin://0.0.0.0:14551``                   bind; replies go to the last sender (a router's ``udpout``)
+``udpout://127.0.0.1:14550``                send to HOST:PORT; accept replies from anyone
+``tcp://127.0.0.1:5760``                    TCP client; reconnects with backoff while the server is down
+==========================================  ===============================================================
+
+``udpin:HOST:PORT`` (pymavlink's spelling, no ``//``) is accepted too. Reconnection backs off exponentially
+from :data:`BACKOFF_MIN_S` to :data:`BACKOFF_MAX_S` so a missing autopilot costs no CPU, and resets on
+success. What cannot be sent (no peer yet, a full socket) is dropped and counted: the service's outputs are
+periodic, so the next one replaces a lost one.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import select
+import socket
+import time
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+from vdm_aero.errors import UserInputError
+
+__all__ = ["BACKOFF_MAX_S", "BACKOFF_MIN_S", "Transport", "TransportUrl", "open_transport", "parse_url"]
+
+BACKOFF_MIN_S = 0.5
+BACKOFF_MAX_S = 8.0
+RECV_BYTES = 65536
+SCHEMES = ("serial", "udpin", "udpout", "tcp")
+
+
+@dataclass(frozen=True)
+class TransportUrl:
+    scheme: str
+    host: str  # the device path for serial
+    port: int  # the baud rate for serial
+
+    def __str__(self) -> str:
+        return f"{self.scheme}://{self.host}:{self.port}"
+
+
+def parse_url(url: str) -> TransportUrl:
+    """``SCHEME://HOST:PORT`` (or ``serial://DEVICE:BAUD``) → :class:`TransportUrl`; one-line error otherwise."""
+    scheme, sep, rest = url.partition(":")
+    if not sep or scheme not in SCHEMES:
+        raise UserInputError(f"connection {url!r}: unknown scheme, use one of {', '.join(s + '://' for s in SCHEMES)}")
+    rest = rest.removeprefix("//")
+    host, sep, port = rest.rpartition(":")
+    if not sep or not host or not port.isdigit():
+        what = "serial://DEVICE:BAUD" if scheme == "serial" else f"{scheme}://HOST:PORT"
+        raise UserInputError(f"connection {url!r}: expected {what}")
+    n = int(port)
+    if scheme == "serial" and not 1200 <= n <= 12_000_000:
+        raise UserInputError(f"connection {url!r}: baud rate {n} out of range")
+    if scheme != "serial" and not 0 <= n <= 65535:
+        raise UserInputError(f"connection {url!r}: port {n} out of range")
+    return TransportUrl(scheme, host, n)
+
+
+class Transport(Protocol):
+    """A byte link; ``recv`` waits at most ``timeout_s`` and never raises for link trouble (it reconnects)."""
+
+    description: str
+    dropped_sends: int
+    reconnects: int
+
+    @property
+    def connected(self) -> bool: ...
+
+    def send(self, data: bytes) -> None: ...
+
+    def recv(self, timeout_s: float) -> bytes: ...
+
+    def close(self) -> None: ...
+
+
+class _Backoff:
+    """Exponential backoff between connection attempts."""
+
+    def __init__(self) -> None:
+        self.delay_s = BACKOFF_MIN_S
+        self.next_try = 0.0
+
+    def due(self) -> bool:
+        return time.monotonic() >= self.next_try
+
+    def failed(self) -> None:
+        self.next_try = time.monotonic() + self.delay_s
+        self.delay_s = min(2.0 * self.delay_s, BACKOFF_MAX_S)
+
+    def succeeded(self) -> None:
+        self.delay_s = BACKOFF_MIN_S
+
+    def wait_s(self) -> float:
+        return max(self.next_try - time.monotonic(), 0.0)
+
+
+class UdpTransport:
+    """``udpin`` (bound; replies to the last sender) or ``udpout`` (fixed peer)."""
+
+    def __init__(self, url: TransportUrl) -> None:
+        self.description = str(url)
+        self.dropped_sends = 0
+        self.reconnects = 0
+        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 21)  # bursts of 400 Hz IMU + ports
+        self._peer: tuple[str, int] | None = None
+        if url.scheme == "udpin":
+            self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            try:
+                self._sock.bind((url.host, url.port))
+            except OSError as e:
+                self._sock.close()
+                raise UserInputError(f"connection {url}: cannot bind: {e.strerror or e}") from None
+        else:
+            self._peer = (url.host, url.port)
+        self._sock.setblocking(False)
+
+    @property
+    def local_address(self) -> tuple[str, int]:
+        host, port = self._sock.getsockname()[:2]
+        return str(host), int(port)
+
+    @property
+    def connected(self) -> bool:
+        return self._peer is not None
+
+    def send(self, data: bytes) -> None:
+        if self._peer is None:
+            self.dropped_sends += 1
+            return
+        try:
+            self._sock.sendto(data, self._peer)
+        except OSError:  # full buffer, or ICMP port unreachable reported on a later send
+            self.dropped_sends += 1
+
+    def recv(self, timeout_s: float) -> bytes:
+        readable, _, _ = select.select([self._sock], [], [], max(timeout_s, 0.0))
+        if not readable:
+            return b""
+        chunks = []
+        while True:
+            try:
+                data, addr = self._sock.recvfrom(RECV_BYTES)
+            except (BlockingIOError, ConnectionRefusedError):
+                break
+            chunks.append(data)
+            if self.description.startswith("udpin"):
+                self._peer = (str(addr[0]), int(addr[1]))
+        return b"".join(chunks)
+
+    def close(self) -> None:
+        self._sock.close()
+
+
+class _StreamTransport:
+    """A reconnecting byte stream (TCP client, serial port); subclasses open and wrap the handle."""
+
+    description: str
+
+    def __init__(self) -> None:
+        self.dropped_sends = 0
+        self.reconnects = 0
+        self._backoff = _Backoff()
+        self._handle: Any = None
+        self._ever_connected = False
+
+    @property
+    def connected(self) -> bool:
+        return self._handle is not None
+
+    def _open(self) -> Any:  # returns the handle, or raises OSError
+        raise NotImplementedError
+
+    def _write(self, data: bytes) -> None:
+        raise NotImplementedError
+
+    def _read(self, timeout_s: float) -> bytes:  # b"" on timeout; OSError or EOFError when the link is gone
+        raise NotImplementedError
+
+    def _ensure(self) -> bool:
+        if self._handle is not None:
+            return True
+        if not self._backoff.due():
+            return False
+        try:
+            self._handle = self._open()
+        except OSError:
+            self._backoff.failed()
+            return False
+        self._backoff.succeeded()
+        if self._ever_connected:
+            self.reconnects += 1
+        self._ever_connected = True
+        return True
+
+    def _drop(self) -> None:
+        if self._handle is not None:
+            with contextlib.suppress(OSError):  # closing a dead handle: nothing left to release
+                self._handle.close()
+            self._handle = None
+            self._backoff.failed()
+
+    def send(self, data: bytes) -> None:
+        if not self._ensure():
+            self.dropped_sends += 1
+            return
+        try:
+            self._write(data)
+        except OSError:
+            self.dropped_sends += 1
+            self._drop()
+
+    def recv(self, timeout_s: float) -> bytes:
+        if not self._ensure():
+            time.sleep(min(max(timeout_s, 0.0), self._backoff.wait_s()))
+            return b""
+        try:
+            return self._read(timeout_s)
+        except (OSError, EOFError):
+            self._drop()
+            return b""
+
+    def close(self) -> None:
+        if self._handle is not None:
+            self._handle.close()
+            self._handle = None
+
+
+class TcpTransport(_StreamTransport):
+    def __init__(self, url: TransportUrl) -> None:
+        super().__init__()
+        self.description = str(url)
+        self._address = (url.host, url.port)
+
+    def _open(self) -> socket.socket:
+        sock = socket.create_connection(self._address, timeout=BACKOFF_MIN_S)
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        sock.settimeout(BACKOFF_MIN_S)  # a send to a stalled peer fails (and reconnects) instead of hanging
+        return sock
+
+    def _write(self, data: bytes) -> None:
+        self._handle.sendall(data)
+
+    def _read(self, timeout_s: float) -> bytes:
+        readable, _, _ = select.select([self._handle], [], [], max(timeout_s, 0.0))
+        if not readable:
+            return b""
+        data: bytes = self._handle.recv(RECV_BYTES)
+        if not data:
+            raise EOFError("TCP peer closed")
+        return data
+
+
+class SerialTransport(_StreamTransport):
+    def __init__(self, url: TransportUrl) -> None:
+        super().__init__()
+        self.description = str(url)
+        self._device, self._baud = url.host, url.port
+
+    def _open(self) -> Any:
+        import serial  # pyserial: only a serial link needs it
+
+        try:
+            return serial.Serial(self._device, self._baud, timeout=0, write_timeout=BACKOFF_MIN_S, exclusive=True)
+        except serial.SerialException as e:  # a missing or busy device: retried with backoff
+            raise OSError(str(e)) from None
+
+    def _write(self, data: bytes) -> None:
+        import serial
+
+        try:
+            self._handle.write(data)
+        except serial.SerialException as e:
+            raise OSError(str(e)) from None
+
+    def _read(self, timeout_s: float) -> bytes:
+        import serial
+
+        try:
+            readable, _, _ = select.select([self._handle.fileno()], [], [], max(timeout_s, 0.0))
+            if not readable:
+                return b""
+            data: bytes = self._handle.read(self._handle.in_waiting or 1)
+        except serial.SerialException as e:  # unplugged: pyserial reports readiness without data
+            raise OSError(str(e)) from None
+        return data
+
+
+def open_transport(url: str) -> UdpTransport | TcpTransport | SerialTransport:
+    """Open the transport named by ``url`` (module docstring). Stream transports connect lazily."""
+    u = parse_url(url)
+    if u.scheme in ("udpin", "udpout"):
+        return UdpTransport(u)
+    if u.scheme == "tcp":
+        return TcpTransport(u)
+    return SerialTransport(u)

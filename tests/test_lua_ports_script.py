@@ -1,0 +1,331 @@
+"""The autopilot-side Lua script (firmware_bridge/ardupilot/pressure_ports.lua) under lua5.4 with stubbed
+ArduPilot bindings (tests/lua/ardupilot_stubs.lua, driven by tests/lua/run_script.lua).
+
+Expectations are computed here from the raw bytes the simulated transducers return, with the MS4525DO
+datasheet's transfer function written out independently of the script.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import random
+import re
+import shutil
+import subprocess
+from dataclasses import dataclass
+from itertools import pairwise
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPT = ROOT / "firmware_bridge" / "ardupilot" / "pressure_ports.lua"
+DRIVER = ROOT / "tests" / "lua" / "run_script.lua"
+
+# TE MS4525DO datasheet, output type A: 14-bit counts, 10 %..90 % of full scale span -range..+range psi
+FULL_COUNTS = 2**14 - 1
+PSI_TO_PA = 6894.757
+NAME_MAX = 10  # NAMED_VALUE_FLOAT.name is char[10]
+AP_MAX_NAME_SIZE = 16  # ArduPilot parameter names
+SEV_WARNING = 4  # MAV_SEVERITY: 0..4 are warnings and worse
+WIRING = {"VPP_COUNT": 12, "VPP_RATE_HZ": 50, "VPP_MUX_ADDR": 0x70, "VPP_ADDR": 0x28, "VPP_RANGE_PSI": 1}
+
+LUA_MISSING = "lua5.4 not installed: apt-get install lua5.4 (.ci/run installs it)"
+
+
+@pytest.fixture
+def lua() -> str:
+    exe = shutil.which("lua5.4")
+    if exe is None:
+        if os.environ.get("CI"):
+            pytest.fail(LUA_MISSING)
+        pytest.skip(LUA_MISSING)
+    return exe
+
+
+def datasheet_pa(counts: float, range_psi: float) -> float:
+    """Inverse of the datasheet's output = 0.8·16383/(Pmax−Pmin)·(P−Pmin) + 0.1·16383, in Pa."""
+    p_min, p_max = -range_psi, range_psi
+    return ((counts - 0.1 * FULL_COUNTS) * (p_max - p_min) / (0.8 * FULL_COUNTS) + p_min) * PSI_TO_PA
+
+
+def pack(dp_counts: int, temp_counts: int, status: int = 0) -> list[int]:
+    """A Read_DF4 per the datasheet: [S1 S0 P13..P8] [P7..P0] [T10..T3] [T2..T0 x x x x x]."""
+    return [(status << 6) | (dp_counts >> 8), dp_counts & 0xFF, temp_counts >> 3, (temp_counts & 0x7) << 5]
+
+
+def to_lua(v: object) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int | float):
+        return repr(v)
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"[{to_lua(k)}] = {to_lua(x)}" for k, x in v.items()) + "}"
+    if isinstance(v, list | tuple):
+        return "{" + ", ".join(to_lua(x) for x in v) + "}"
+    raise TypeError(v)
+
+
+@dataclass
+class Sensors:
+    """Raw counts per update (1-based) and port (0-based), and the bytes the transducers return."""
+
+    counts: dict[int, dict[int, int]]
+    frames: dict[int, dict[int, list[int]]]
+
+
+def make_sensors(seed: int, updates: int, ports: int, status: dict[tuple[int, int], int] | None = None) -> Sensors:
+    rng = random.Random(seed)
+    counts: dict[int, dict[int, int]] = {}
+    frames: dict[int, dict[int, list[int]]] = {}
+    for k in range(1, updates + 1):
+        counts[k] = {p: rng.randint(1700, 14600) for p in range(ports)}
+        if k == 1 and ports >= 3:  # the ends and the middle of the type-A span
+            counts[k].update({0: round(0.1 * FULL_COUNTS), 1: round(0.9 * FULL_COUNTS), 2: 8192})
+        frames[k] = {p: pack(c, rng.randint(200, 1800), (status or {}).get((k, p), 0)) for p, c in counts[k].items()}
+    return Sensors(counts, frames)
+
+
+@dataclass
+class Run:
+    rows: list[list[str]]
+
+    def of(self, kind: str) -> list[list[str]]:
+        return [r[1:] for r in self.rows if r[0] == kind]
+
+    def values(self, k: int) -> dict[str, float]:
+        return {name: float(v) for kk, _, name, v in self.of("NVF") if int(kk) == k}
+
+    def nvf_ms(self, k: int) -> set[int]:
+        return {int(ms) for kk, ms, _, _ in self.of("NVF") if int(kk) == k}
+
+    def calls(self) -> list[tuple[int, int]]:
+        return [(int(k), int(ms)) for k, ms in self.of("CALL")]
+
+    def warnings(self) -> list[tuple[int, str]]:
+        return [(int(ms), text) for _, ms, sev, text in self.of("TEXT") if int(sev) <= SEV_WARNING]
+
+
+def run_script(lua: str, tmp_path: Path, **scenario: object) -> Run:
+    path = tmp_path / f"scenario_{len(list(tmp_path.glob('scenario_*.lua')))}.lua"
+    path.write_text("return " + to_lua(scenario) + "\n")
+    proc = subprocess.run(
+        [lua, str(DRIVER), str(SCRIPT), str(path)], capture_output=True, text=True, timeout=120, check=False
+    )
+    assert proc.returncode == 0, proc.stderr
+    run = Run([line.split("\t") for line in proc.stdout.splitlines()])
+    assert not run.of("DIED"), run.of("DIED")
+    return run
+
+
+def port_names(n: int) -> list[str]:
+    return [f"P{i:02d}" for i in range(n)]
+
+
+def text_interval_ms() -> int:
+    m = re.search(r"^local TEXT_INTERVAL_MS = (\d+)", SCRIPT.read_text(), re.MULTILINE)
+    assert m, "the script states its fault-text interval"
+    return int(m.group(1))
+
+
+@pytest.mark.parametrize("count", [1, 12, 20])
+def test_each_update_sends_every_port_once_at_one_millis(lua: str, tmp_path: Path, count: int) -> None:
+    updates = 6
+    sensors = make_sensors(1, updates, count)
+    run = run_script(lua, tmp_path, params=WIRING | {"VPP_COUNT": count}, updates=updates, frames=sensors.frames)
+    sends = run.of("NVF")
+    assert len(sends) == updates * count
+    calls = dict(run.calls())
+    assert sorted(calls) == list(range(1, updates + 1))
+    for k in calls:
+        names = [name for kk, _, name, _ in sends if int(kk) == k]
+        assert sorted(names) == port_names(count)  # each port exactly once per update
+        assert all(len(n) <= NAME_MAX and n.isascii() for n in names)
+        assert len(run.nvf_ms(k)) == 1  # one time_boot_ms for the frame
+    if count >= 12:
+        # the bus time is simulated: the frame's millis is after the update started, so sending between
+        # reads would have given the ports different millis
+        assert all(min(run.nvf_ms(k)) > calls[k] for k in calls)
+
+
+@pytest.mark.parametrize("range_psi", [1, 5])
+def test_values_follow_the_datasheet_transfer_function(lua: str, tmp_path: Path, range_psi: int) -> None:
+    assert datasheet_pa(0.1 * FULL_COUNTS, range_psi) == pytest.approx(-range_psi * PSI_TO_PA)
+    assert datasheet_pa(0.9 * FULL_COUNTS, range_psi) == pytest.approx(range_psi * PSI_TO_PA)
+    updates = 4
+    sensors = make_sensors(2, updates, 12)
+    run = run_script(
+        lua, tmp_path, params=WIRING | {"VPP_RANGE_PSI": range_psi}, updates=updates, frames=sensors.frames
+    )
+    for k in range(1, updates + 1):
+        got = run.values(k)
+        want = {f"P{p:02d}": datasheet_pa(c, range_psi) for p, c in sensors.counts[k].items()}
+        assert got == pytest.approx(want, rel=1e-12, abs=1e-9)
+    assert abs(run.values(1)["P02"]) < datasheet_pa(1, range_psi) - datasheet_pa(0, range_psi)  # mid-scale ≈ 0
+
+
+@pytest.mark.parametrize("rate_hz", [50, 25, 30])
+def test_updates_start_every_1000_over_rate_ms(lua: str, tmp_path: Path, rate_hz: int) -> None:
+    updates = 12
+    sensors = make_sensors(3, updates, 12)
+    run = run_script(lua, tmp_path, params=WIRING | {"VPP_RATE_HZ": rate_hz}, updates=updates, frames=sensors.frames)
+    period_ms = round(1000 / rate_hz)
+    starts = [ms for _, ms in run.calls()]
+    assert len(starts) == updates
+    assert {b - a for a, b in pairwise(starts)} == {period_ms}
+    # the returned delay counts from the return (as AP_Scripting does), so it makes up for the I2C time
+    rets = {int(k): (int(ms), int(d)) for k, ms, d in run.of("RET")}
+    for k, start in run.calls():
+        ret_ms, delay = rets[k]
+        assert ret_ms + delay - start == period_ms
+
+
+def test_stale_or_faulted_reading_is_nan_for_that_port_only(lua: str, tmp_path: Path) -> None:
+    updates = 6
+    bad = {(2, 3): 3, (4, 7): 2, (5, 10): 1}  # fault, stale, reserved status bits
+    sensors = make_sensors(4, updates, 12, status=bad)
+    sensors.frames[3][0] = pack(0x3FFF, 900)  # all-ones pressure word: a stuck bus, not a pressure
+    run = run_script(lua, tmp_path, params=WIRING, updates=updates, frames=sensors.frames)
+    nan_at = {(3, 0), *bad}
+    for k in range(1, updates + 1):
+        got = run.values(k)
+        assert sorted(got) == port_names(12)
+        for p in range(12):
+            v = got[f"P{p:02d}"]
+            if (k, p) in nan_at:
+                assert math.isnan(v), (k, p)
+            else:
+                assert v == pytest.approx(datasheet_pa(sensors.counts[k][p], 1), rel=1e-12), (k, p)
+
+
+def test_unanswered_transducer_keeps_the_script_running_and_texts_rate_limited(lua: str, tmp_path: Path) -> None:
+    updates = 500  # 10 s at 50 Hz
+    sensors = make_sensors(5, updates, 12)
+    run = run_script(lua, tmp_path, params=WIRING, updates=updates, frames=sensors.frames, nack={5: True})
+    assert len(run.calls()) == updates  # rescheduled every time
+    for k in (1, updates // 2, updates):
+        got = run.values(k)
+        assert math.isnan(got["P05"])
+        assert all(math.isfinite(v) for n, v in got.items() if n != "P05")
+    interval = text_interval_ms()
+    assert interval >= 1000
+    warned = [ms for ms, _ in run.warnings()]
+    span_ms = run.calls()[-1][1] - run.calls()[0][1]
+    assert 1 <= len(warned) <= span_ms // interval + 1  # 500 bad readings, a handful of texts
+    assert all(b - a >= interval for a, b in pairwise(warned))
+    assert "P05" in run.warnings()[0][1]
+
+
+def test_lua_error_in_an_update_is_caught_and_the_script_goes_on(lua: str, tmp_path: Path) -> None:
+    updates = 10
+    sensors = make_sensors(6, updates, 12)
+    run = run_script(lua, tmp_path, params=WIRING, updates=updates, frames=sensors.frames, raise_at={3: True, 4: True})
+    assert len(run.calls()) == updates
+    assert run.values(3) == {} and run.values(4) == {}  # the error came before any send
+    for k in range(5, updates + 1):  # recovered, mux state re-established
+        want = {f"P{p:02d}": datasheet_pa(c, 1) for p, c in sensors.counts[k].items()}
+        assert run.values(k) == pytest.approx(want, rel=1e-12)
+    texts = [text for _, text in run.warnings()]
+    assert len(texts) == 1  # updates 3 and 4 are 20 ms apart: one text
+    assert "simulated I2C driver fault" in texts[0]
+
+
+def test_failed_mux_switch_never_reports_another_ports_pressure(lua: str, tmp_path: Path) -> None:
+    # at update 2 the write that routes to P09 is not acknowledged: P08's channel stays open, and P08's
+    # transducer has a fresh conversion (the script's measurement request), so a blind read gets P08's value
+    updates = 3
+    sensors = make_sensors(7, updates, 12)
+    run = run_script(lua, tmp_path, params=WIRING, updates=updates, frames=sensors.frames, mux_fail={2: {9: True}})
+    got = run.values(2)
+    assert math.isnan(got["P09"])
+    assert got["P08"] == pytest.approx(datasheet_pa(sensors.counts[2][8], 1), rel=1e-12)
+    assert got["P10"] == pytest.approx(datasheet_pa(sensors.counts[2][10], 1), rel=1e-12)
+    assert math.isfinite(run.values(3)["P09"])
+
+
+def test_sleep_mode_transducers_are_read_after_a_measurement_request(lua: str, tmp_path: Path) -> None:
+    # sleep-mode MS4525DO parts convert only on Read_MR: the first reading after boot is stale (NaN), every
+    # later one is fresh because the script requests the next conversion after each read
+    updates = 4
+    sensors = make_sensors(13, updates, 12)
+    run = run_script(lua, tmp_path, params=WIRING, updates=updates, frames=sensors.frames, sleep_mode=True)
+    assert all(math.isnan(v) for v in run.values(1).values())
+    for k in range(2, updates + 1):
+        want = {f"P{p:02d}": datasheet_pa(c, 1) for p, c in sensors.counts[k].items()}
+        assert run.values(k) == pytest.approx(want, rel=1e-12)
+
+
+def test_mux_channels_are_closed_between_updates(lua: str, tmp_path: Path) -> None:
+    sensors = make_sensors(8, 4, 20)
+    run = run_script(lua, tmp_path, params=WIRING | {"VPP_COUNT": 20}, updates=4, frames=sensors.frames)
+    open_after = [int(n) for k, n in run.of("MUX_OPEN") if int(k) >= 1]
+    assert open_after == [0, 0, 0, 0]  # ArduPilot's own drivers on the bus never meet a transducer
+
+
+def test_without_a_mux_ports_are_at_consecutive_addresses(lua: str, tmp_path: Path) -> None:
+    sensors = make_sensors(9, 3, 3)
+    params = {"VPP_COUNT": 3, "VPP_MUX_ADDR": 0, "VPP_ADDR": 0x28, "VPP_RANGE_PSI": 2}
+    run = run_script(lua, tmp_path, params=params, updates=3, frames=sensors.frames)
+    for k in (1, 2, 3):
+        want = {f"P{p:02d}": datasheet_pa(c, 2) for p, c in sensors.counts[k].items()}
+        assert run.values(k) == pytest.approx(want, rel=1e-12)
+    assert {int(addr) for _, addr, *_ in run.of("XFER")} == {0x28, 0x29, 0x2A}
+
+
+def test_disabled_sends_nothing_and_enabling_needs_no_reboot(lua: str, tmp_path: Path) -> None:
+    updates = 6
+    sensors = make_sensors(10, updates, 12)
+    run = run_script(
+        lua,
+        tmp_path,
+        params=WIRING | {"VPP_ENABLE": 0},
+        updates=updates,
+        frames=sensors.frames,
+        param_changes={4: {"VPP_ENABLE": 1}},
+    )
+    assert len(run.calls()) == updates  # a disabled script still polls VPP_ENABLE
+    for k in (1, 2, 3):
+        assert run.values(k) == {}
+        assert not [x for x in run.of("XFER") if int(x[0]) == k]  # the bus is left alone
+    assert [int(k) for k, *_ in run.of("I2C_DEV")] == [4]  # opened when first enabled
+    for k in (4, 5, 6):
+        assert sorted(run.values(k)) == port_names(12)
+
+
+def test_parameters_fit_ardupilot_limits_and_companion_defaults(lua: str, tmp_path: Path) -> None:
+    run = run_script(lua, tmp_path, updates=0)
+    (table,) = run.of("ADD_TABLE")
+    key, prefix, n = int(table[0]), table[1], int(table[2])
+    assert 0 <= key <= 200 and prefix == "VPP_" and 1 <= n <= 63  # bindings.desc: add_table uint8_t 0 200, 1 63
+    params = {name: (int(idx), float(default)) for k, idx, name, default in run.of("ADD_PARAM") if int(k) == key}
+    idxs = [idx for idx, _ in params.values()]
+    assert len(set(idxs)) == len(idxs) and all(1 <= i <= n for i in idxs)
+    assert all(len(prefix + name) <= AP_MAX_NAME_SIZE for name in params)
+    assert {"ENABLE", "RATE_HZ", "COUNT", "BUS", "MUX_ADDR", "RANGE_PSI"} <= set(params)
+    assert params["RATE_HZ"][1] == 50
+    # defaults match the companion's: 12 ports P00..P11
+    assert params["COUNT"][1] == 12
+
+
+def test_one_i2c_handle_for_all_ports(lua: str, tmp_path: Path) -> None:
+    # scripts share SCRIPTING_MAX_NUM_I2C_DEVICE = 4 handles in all: one handle, moved with set_address
+    sensors = make_sensors(11, 3, 20)
+    run = run_script(lua, tmp_path, params=WIRING | {"VPP_COUNT": 20}, updates=3, frames=sensors.frames)
+    assert [(int(bus), int(addr)) for _, bus, addr in run.of("I2C_DEV")] == [(0, 0x28)]
+
+
+def test_runs_under_the_lua_53_that_ardupilot_embeds(tmp_path: Path) -> None:
+    exe = shutil.which("lua5.3")
+    if exe is None:
+        reason = "lua5.3 not installed (ArduPilot embeds Lua 5.3.6): apt-get install lua5.3 (.ci/run installs it)"
+        if os.environ.get("CI"):
+            pytest.fail(reason)
+        pytest.skip(reason)
+    sensors = make_sensors(12, 3, 12)
+    run = run_script(exe, tmp_path, params=WIRING, updates=3, frames=sensors.frames)
+    for k in (1, 2, 3):
+        want = {f"P{p:02d}": datasheet_pa(c, 1) for p, c in sensors.counts[k].items()}
+        assert run.values(k) == pytest.approx(want, rel=1e-12)

@@ -1,0 +1,410 @@
+"""The companion service's parts, each against an independent reference: MAVLink units (the mock's own
+encoders are the peer), GPS week time (a published epoch), the sd_notify protocol (a fake NOTIFY_SOCKET),
+port frames, IMU increments, the autopilot clock, the config's one-line errors, and the state file."""
+
+from __future__ import annotations
+
+import math
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from firmware_bridge import units
+from firmware_bridge.config import ConfigError, load_config
+from firmware_bridge.inputs import AutopilotClock, ImuIntegrator, PortAssembler
+from firmware_bridge.outputs import gps_week_time, inflation
+from firmware_bridge.sd_notify import SdNotify
+from firmware_bridge.transport import parse_url
+from vdm_aero.errors import UserInputError
+
+DEPLOY = Path(__file__).resolve().parent.parent / "deploy" / "config.yaml"
+
+
+def _roundtrip(msg: object) -> object:
+    """Pack with one codec, parse with another: what the service really sees."""
+    sink = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    buf = msg.pack(sink)  # type: ignore[attr-defined]
+    rx = mavlink2.MAVLink(None, srcSystem=1, srcComponent=191)
+    return rx.parse_buffer(buf)[0]
+
+
+def test_units_from_the_mock_encoders() -> None:
+    """The mock (sim.sitl.streams) converts SI → MAVLink on its own; the service must get the SI back."""
+    from sim.sitl.streams import to_cdeg_heading, to_deg_e7, to_mm
+
+    mav = mavlink2.MAVLink(None, 1, 1)
+    m = _roundtrip(mav.scaled_imu_encode(1234, 1000, -20, -980, 10, -5, 3, 200, -49, 465, 2512))
+    s = units.from_scaled_imu(m)
+    assert s.t_s == pytest.approx(1.234)
+    np.testing.assert_allclose(s.accel_b_m_s2, np.array([1000, -20, -980]) * 9.80665e-3)
+    np.testing.assert_allclose(s.gyro_b_rad_s, [0.010, -0.005, 0.003])
+    np.testing.assert_allclose(s.mag_b_ut, [20.0, -4.9, 46.5])  # 1 mG = 0.1 µT
+    assert s.temperature_c == pytest.approx(25.12)
+    lat, lon, alt, vn, ve = 42.2830335, -71.3500307, 155.6, 12.0, -9.0
+    course = math.atan2(ve, vn)
+    m = _roundtrip(mav.gps_raw_int_encode(5_000_000, 3, to_deg_e7(lat), to_deg_e7(lon), to_mm(alt), 80, 120,
+                                          round(100 * math.hypot(vn, ve)), to_cdeg_heading(course), 14, 0, 700,
+                                          1000, 200, 0, 0))  # fmt: skip
+    g = units.from_gps_raw_int(m)
+    assert g is not None and g.t_valid_s == 5.0 and g.fix_type == 3
+    assert (g.lat_deg, g.lon_deg, g.alt_m) == pytest.approx((lat, lon, alt), abs=1e-7)
+    np.testing.assert_allclose(g.v_ned_m_s[:2], [vn, ve], atol=0.02)  # cm/s and cdeg quantisation
+    assert math.isnan(g.v_ned_m_s[2]) and g.h_acc_m == pytest.approx(0.7)
+    no_fix = _roundtrip(mav.gps_raw_int_encode(1, 1, 0, 0, 0, 65535, 65535, 65535, 65535, 0))
+    assert units.from_gps_raw_int(no_fix) is None
+    p = units.from_scaled_pressure(_roundtrip(mav.scaled_pressure_encode(2000, 1001.25, 0.61, 1530, 0)))
+    assert (p.static_pa, p.pitot_dp_pa, p.temperature_c) == pytest.approx((100125.0, 61.0, 15.3), rel=1e-6)
+    no_pitot = units.from_scaled_pressure(_roundtrip(mav.scaled_pressure_encode(2000, 1001.25, 0.0, 1530, 0)))
+    assert math.isnan(no_pitot.pitot_dp_pa)
+    h = units.from_highres_imu(_roundtrip(mav.highres_imu_encode(2_500, 0.1, 0.2, -9.8, 0.01, 0.02, 0.03, 0.2, -0.05,
+                                                                 0.45, 1001.0, 0.6, 100.0, 31.0, 0x1FFF)))  # fmt: skip
+    np.testing.assert_allclose(h.mag_b_ut, [20.0, -5.0, 45.0], rtol=1e-6)  # gauss → µT
+    assert h.t_s == pytest.approx(0.0025)
+    h2 = units.from_highres_imu(
+        _roundtrip(mav.highres_imu_encode(2_500, 0, 0, -9.8, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0x3F))
+    )
+    assert h2.mag_b_ut is None  # fields_updated says the magnetometer is not in this one
+
+
+def test_gps_week_time_against_known_dates() -> None:
+    # 2017-01-01T00:00:00Z (leap second 18 in force from then): GPS week 1930, Sunday + 18 s
+    assert gps_week_time(1483228800.0) == (1930, 18_000)
+    # the GPS epoch itself, in UTC, is 1980-01-06T00:00:00Z; 18 s earlier in UTC is week 0 ms 0 with 18 leaps
+    assert gps_week_time(315964800.0 - 18.0) == (0, 0)
+    assert inflation(5.0) == pytest.approx(math.sqrt(10.0))
+
+
+def test_sd_notify_against_a_fake_socket(tmp_path: Path) -> None:
+    path = str(tmp_path / "notify.sock")
+    server = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    server.bind(path)
+    server.settimeout(2.0)
+    try:
+        n = SdNotify(path)
+        assert n.notify(ready=1, status="listening")
+        assert server.recv(4096) == b"READY=1\nSTATUS=listening"
+        assert n.notify(watchdog=1) and server.recv(4096) == b"WATCHDOG=1"
+        assert n.notify(stopping=1) and server.recv(4096) == b"STOPPING=1"
+        n.close()
+    finally:
+        server.close()
+    server = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    server.bind(path + "2")
+    try:  # a receiver that never reads: its queue fills and the service goes on (counted, never blocked)
+        slow = SdNotify(path + "2")
+        sent = [slow.notify(watchdog=1) for _ in range(200)]
+        assert sent[0] and not all(sent) and slow.failures == sent.count(False)
+    finally:
+        server.close()
+    gone = SdNotify(path)  # the socket is gone: counted, not raised
+    assert not gone.notify(ready=1) and gone.failures == 1
+    assert not SdNotify(None).notify(ready=1)  # not under systemd: a no-op
+
+
+def test_port_frames_complete_straddling_partial_and_unknown() -> None:
+    a = PortAssembler(["P00", "P01", "P02"], timeout_s=0.05)
+    assert a.add(1000, "P00", 1.0, 0.0) == [] and a.add(1000, "P01", 2.0, 0.0) == []
+    (fr,) = a.add(1001, "P02", 3.0, 0.001)  # a script update straddling one millisecond is one frame
+    assert fr.complete and fr.t_s == 1.0 and list(fr.dp_pa) == [1.0, 2.0, 3.0]
+    a.add(1020, "P00", 4.0, 0.02)
+    a.add(1020, "BATT", 12.0, 0.02)  # someone else's named value
+    (partial,) = a.add(1040, "P00", 5.0, 0.04)  # the next frame starts: the open one closes partial
+    assert not partial.complete and partial.dp_pa[0] == 4.0 and np.isnan(partial.dp_pa[1:]).all()
+    assert a.expire(0.08) is None and a.expire(0.2) is not None  # a lone value times out
+    assert a.counts == {"complete": 1, "partial": 2, "unknown_name": 1, "late": 0}
+
+
+def test_imu_increments_integrate_a_constant_rate() -> None:
+    integ = ImuIntegrator(50.0)
+    w, f = np.array([0.1, -0.2, 0.3]), np.array([0.5, 0.0, -9.8])
+    steps = []
+    for k in range(401):  # 1 s at 400 Hz
+        s = units.ImuSample(k / 400.0, w, f, 20.0, None)
+        if (r := integ.add(s)) is not None:
+            steps.append(r)
+    assert len(steps) == 50
+    for _, inc in steps:
+        assert inc.dt_s == pytest.approx(0.02)
+        np.testing.assert_allclose(inc.dtheta_b, w * 0.02, rtol=1e-9)
+        np.testing.assert_allclose(inc.dvel_b, f * 0.02, rtol=1e-9)
+    assert integ.add(units.ImuSample(5.0, w, f, 20.0, None)) is None and integ.gaps == 1  # a link gap
+
+
+def test_clock_is_continuous_across_an_autopilot_reboot_and_timesync() -> None:
+    c = AutopilotClock()
+    assert not c.observe_boot_s(100.0)
+    t_before = c.filter_s(100.0)
+    assert c.observe_boot_s(2.0) and c.reboots == 1
+    assert c.filter_s(2.0) > t_before
+    c.timesync(tc1_ns=50_000_000_000, ts1_ns=1_000_000_000, now_ns=1_002_000_000)  # 2 ms round trip
+    assert c.offset_s == pytest.approx(50.0 - 1.001) and c.rtt_s == pytest.approx(0.002)
+
+
+def test_urls() -> None:
+    assert str(parse_url("udpin://0.0.0.0:14551")) == "udpin://0.0.0.0:14551"
+    assert parse_url("serial:///dev/ttyAMA0:921600").host == "/dev/ttyAMA0"
+    assert parse_url("tcp:127.0.0.1:5760").port == 5760
+    for bad in ("udp://x:1", "udpin://nohost", "serial:///dev/ttyS0:12", "tcp://h:70000"):
+        with pytest.raises(UserInputError):
+            parse_url(bad)
+
+
+# ------------------------------------------------------------------------------------------- config
+def _config(tmp_path: Path, edit: dict[str, object] | None = None) -> Path:
+    from vdm_aero.vehicle import load_vehicle
+
+    load_vehicle("uav-2m")
+    cfg = yaml.safe_load(DEPLOY.read_text())
+    for d in ("design", "deim", "deim-nn"):
+        (tmp_path / d).mkdir(exist_ok=True)
+    cfg["models"].update(design_data="design", deim="deim", deim_nn="deim-nn")
+    for k, v in (edit or {}).items():
+        node = cfg
+        *parents, last = k.split(".")
+        for p in parents:
+            node = node[p]
+        node[last] = v
+    path = tmp_path / "config.yaml"
+    path.write_text(yaml.safe_dump(cfg, sort_keys=False))
+    return path
+
+
+def test_shipped_config_reads(tmp_path: Path) -> None:
+    cfg = load_config(_config(tmp_path))
+    assert cfg.mode == "vdm-deim-nn" and cfg.deim_model == tmp_path / "deim"
+    assert cfg.streams["HIGHRES_IMU"] == 400 and cfg.outputs.solution == "gps_input"
+
+
+@pytest.mark.parametrize(
+    ("edit", "needle"),
+    [
+        ({"navigation.moed": "ins"}, "navigation.moed: unknown key"),
+        ({"navigation.mode": "vdm-magic"}, "navigation.mode: expected one of"),
+        ({"streams.HIGHRES_IMUU": 100}, "streams.HIGHRES_IMUU: unknown MAVLink message"),
+        ({"connection": "udp://1.2.3.4:5"}, "connection:"),
+        ({"outputs.solution": "odometry"}, "outputs.solution: expected one of gps_input, none"),  # ardupilot
+        ({"signing.require": True}, "signing.require: signing is required but no key_file"),
+        ({"models.deim": "missing-dir"}, "models.deim:"),
+        ({"navigation.mag_field_ned_ut": [0.2, 0.0, 0.4]}, "not an Earth field"),
+        ({"ports.names": ["P00", "P00"]}, "duplicate port name"),
+    ],
+)
+def test_bad_config_one_line_with_key_and_line(tmp_path: Path, edit: dict[str, object], needle: str) -> None:
+    path = _config(tmp_path, edit)
+    with pytest.raises(ConfigError) as e:
+        load_config(path)
+    msg = str(e.value)
+    assert needle in msg and "\n" not in msg
+    key = next(iter(edit)).split(".")[-1]
+    lines = path.read_text().splitlines()
+    line = int(msg.split(":")[1])  # "<file>:<line>: key: what"
+    assert key in lines[line - 1] or key == "require", (msg, lines[line - 1])
+
+
+def test_cli_bad_config_exits_2_with_one_line(tmp_path: Path) -> None:
+    path = _config(tmp_path, {"ports.frame_timeout_s": "fast"})
+    r = subprocess.run([sys.executable, "-m", "vdm_aero_cli.main", "serve", "--check-config", "--config", str(path)],
+                       capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert r.returncode == 2
+    assert r.stderr.count("\n") == 1 and "ports.frame_timeout_s: expected a number" in r.stderr
+
+
+# ------------------------------------------------------------------------------------------ outputs
+def _solution() -> object:
+    from firmware_bridge.outputs import Solution
+
+    return Solution(boot_s=212.5, unix_s=1_790_000_000.25, lat_deg=42.2830335, lon_deg=-71.3500307, alt_m=155.6,
+                    p_ned_m=np.array([10.0, -20.0, -105.0]), v_ned_m_s=np.array([18.0, -3.0, 0.5]),
+                    q_nb=np.array([1.0, 0.0, 0.0, 0.0]), sigma_h_m=12.0, sigma_v_m=2.0, sigma_vel_m_s=0.8,
+                    wind_ned_m_s=np.array([-6.0, 6.0, 0.0]), sigma_wind_m_s=0.5, fix_type=3)  # fmt: skip
+
+
+def test_gps_input_decodes_to_the_solution_with_inflated_accuracies() -> None:
+    from firmware_bridge.outputs import external_wind, gps_input, gps_week_time
+
+    mav = mavlink2.MAVLink(None, 1, 191)
+    s = _solution()
+    m = _roundtrip(gps_input(mav, s, gps_id=1, k=3.0))  # type: ignore[arg-type]
+    assert (m.gps_id, m.fix_type, m.satellites_visible) == (1, 3, 0)
+    # lat/lon are degE7 integers (1e-7 deg); alt is a float32 (resolution 1.5e-5 m at 155 m)
+    assert (m.lat * 1e-7, m.lon * 1e-7) == pytest.approx((42.2830335, -71.3500307), abs=1e-7)
+    assert m.alt == pytest.approx(155.6, abs=2e-5)
+    assert (m.vn, m.ve, m.vd) == pytest.approx((18.0, -3.0, 0.5))
+    assert (m.horiz_accuracy, m.vert_accuracy, m.speed_accuracy) == pytest.approx((36.0, 6.0, 2.4))
+    assert (m.time_week, m.time_week_ms) == gps_week_time(1_790_000_000.25) and m.time_usec == 212_500_000
+    w = _roundtrip(external_wind(mav, s, target=(1, 1)))  # type: ignore[arg-type]
+    assert w.command == 43004 and w.param1 == pytest.approx(math.hypot(6.0, 6.0))
+    assert w.param3 == pytest.approx(315.0)  # blowing towards the south-east: it comes from the north-west
+
+
+def test_px4_outputs_decode() -> None:
+    from firmware_bridge.outputs import global_position_sensor, odometry
+
+    mav = mavlink2.MAVLink(None, 1, 191)
+    s = _solution()
+    g = _roundtrip(global_position_sensor(mav, s, target=(1, 1), k=2.0))  # type: ignore[arg-type]
+    assert (g.lat * 1e-7, g.lon * 1e-7) == pytest.approx((42.2830335, -71.3500307), abs=1e-7)
+    assert (g.alt, g.eph, g.epv) == pytest.approx((155.6, 24.0, 4.0), abs=2e-5)  # float32 fields
+    o = _roundtrip(odometry(mav, s, k=2.0))  # type: ignore[arg-type]
+    assert (o.frame_id, o.child_frame_id) == (mavlink2.MAV_FRAME_LOCAL_NED, mavlink2.MAV_FRAME_BODY_FRD)
+    assert (o.x, o.y, o.z, o.vx) == pytest.approx((10.0, -20.0, -105.0, 18.0))
+    assert (o.pose_covariance[0], o.pose_covariance[6], o.pose_covariance[11]) == pytest.approx((576.0, 576.0, 16.0))
+
+
+# -------------------------------------------------------------------------------------- state file
+def test_filter_state_survives_a_restart(tmp_path: Path) -> None:
+    from firmware_bridge.persist import FilterStateStore
+    from vdm_aero.nav.filter import NavConfig, NavFilter
+    from vdm_aero.vehicle import load_vehicle
+
+    cfg = NavConfig(vehicle=load_vehicle("uav-2m"), origin_alt_m=50.0, mag_field_ned_ut=np.array([20.1, -4.9, 46.5]))
+    f_b, mag = np.array([0.0, 0.0, -9.80665]), np.array([20.1, -4.9, 46.5])
+    a = NavFilter("airspeed-dr", cfg)
+    a.initialise(0.0, np.zeros(3), np.array([20.0, 0.0, 0.0]), f_b, mag)
+    assert a.x is not None
+    a.x.wind_ned = np.array([-5.0, 4.0, 0.1])
+    a.x.b_gyro_b = np.array([1e-3, -2e-3, 5e-4])
+    a.x.aero[2] = 1.04
+    store = FilterStateStore(tmp_path / "state" / "filter-state.npz")
+    assert store.save(a) and not list((tmp_path / "state").glob(".*tmp"))  # atomic: no leftovers
+    b = NavFilter("airspeed-dr", cfg)
+    b.initialise(0.0, np.array([5.0, 5.0, 0.0]), np.array([20.0, 0.0, 0.0]), f_b, mag)
+    saved = store.load()
+    assert saved is not None
+    restored = FilterStateStore.restore(b, saved)
+    assert restored == ["bg", "ba", "wind", "bm", "baro", "aero"] and b.x is not None
+    np.testing.assert_allclose(b.x.wind_ned, [-5.0, 4.0, 0.1])
+    np.testing.assert_allclose(b.x.b_gyro_b, [1e-3, -2e-3, 5e-4])
+    assert b.x.aero[2] == pytest.approx(1.04)
+    np.testing.assert_allclose(b.x.p_ned, [5.0, 5.0, 0.0])  # the pose is the new initialisation's
+    from vdm_aero.nav.state import IDX
+
+    w = IDX["wind"]
+    assert np.allclose(np.diag(b.P)[w], 4.0 * np.diag(a.P)[w])  # σ doubled
+    assert np.all(np.linalg.eigvalsh(b.P) > 0.0)
+    (tmp_path / "state" / "filter-state.npz").write_bytes(b"not a state file")
+    with pytest.raises(UserInputError, match=r"filter-state\.npz: not a filter state file"):
+        store.load()
+
+
+# ------------------------------------------------------------------------------------ links, signing
+def test_tcp_link_reconnects_with_backoff() -> None:
+    import time
+
+    from firmware_bridge.transport import BACKOFF_MIN_S, open_transport
+
+    probe = socket.socket()
+    probe.bind(("127.0.0.1", 0))
+    port = probe.getsockname()[1]
+    probe.close()  # nothing listens there yet
+    t = open_transport(f"tcp://127.0.0.1:{port}")
+    t.send(b"lost")
+    assert not t.connected and t.dropped_sends == 1
+    server = socket.socket()
+    server.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    server.bind(("127.0.0.1", port))
+    server.listen(1)
+    try:
+        deadline = time.monotonic() + 5.0
+        while not t.connected and time.monotonic() < deadline:
+            t.recv(0.1)  # retried after the backoff, not in a busy loop
+        assert t.connected
+        conn, _ = server.accept()
+        conn.sendall(b"\xfd hello")
+        assert t.recv(1.0) == b"\xfd hello"
+        conn.close()  # the autopilot side goes away ...
+        assert t.recv(1.0) == b"" and not t.connected
+        time.sleep(BACKOFF_MIN_S)
+        while not t.connected and time.monotonic() < deadline + 5.0:
+            t.recv(0.1)
+        assert t.connected and t.reconnects == 1  # ... and comes back
+    finally:
+        t.close()
+        server.close()
+
+
+def test_serial_link_on_a_pseudo_terminal() -> None:
+    import os
+    import tty
+
+    from firmware_bridge.transport import open_transport
+
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    t = open_transport(f"serial://{os.ttyname(slave)}:921600")
+    try:
+        t.send(b"\xfd frame")
+        assert t.connected and os.read(master, 64) == b"\xfd frame"
+        os.write(master, b"\xfd reply")
+        assert t.recv(1.0) == b"\xfd reply"
+    finally:
+        t.close()
+        os.close(master)
+        os.close(slave)
+
+
+class _Loopback:
+    """A transport that hands back what it is given to ``recv`` (for the codec tests)."""
+
+    description = "loopback"
+    dropped_sends = 0
+    reconnects = 0
+    connected = True
+
+    def __init__(self) -> None:
+        self.inbox = b""
+
+    def send(self, data: bytes) -> None:
+        pass
+
+    def recv(self, timeout_s: float) -> bytes:
+        data, self.inbox = self.inbox, b""
+        return data
+
+    def close(self) -> None:
+        pass
+
+
+def test_required_signing_rejects_and_counts_unsigned(tmp_path: Path) -> None:
+    import time
+
+    from firmware_bridge.endpoint import MavEndpoint, load_signing_key
+
+    key_file = tmp_path / "key"
+    key_file.write_text("ab" * 32 + "\n")  # 64 hex digits
+    key = load_signing_key(key_file, require=True)
+    link = _Loopback()
+    ep = MavEndpoint(link, system_id=1, component_id=191, signing=key)
+    autopilot = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    unsigned = autopilot.named_value_float_encode(1000, b"P00", 12.5).pack(autopilot)
+    link.inbox = unsigned
+    assert ep.poll(0.0) == [] and ep.rejected_unsigned == 1
+    signer = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    now_ticks = int((time.time() - 1420070400) * 100_000)  # MAVLink signing time: 10 µs since 2015
+    signer.signing.secret_key, signer.signing.sign_outgoing, signer.signing.timestamp = key.key, True, now_ticks
+    link.inbox = signer.named_value_float_encode(1000, b"P00", 12.5).pack(signer)
+    (msg,) = ep.poll(0.0)
+    assert msg.value == 12.5 and ep.rejected_unsigned == 1
+    (tmp_path / "short").write_bytes(b"\x01" * 16)
+    with pytest.raises(UserInputError, match="32 raw bytes or 64 hex digits"):
+        load_signing_key(tmp_path / "short", require=False)
+
+
+def test_navigation_log_is_rotated(tmp_path: Path) -> None:
+    from firmware_bridge.persist import NAV_LOG_COLUMNS, NavLog
+
+    log = NavLog(tmp_path / "nav.csv", max_bytes=2000, backups=2)
+    for k in range(200):
+        log.write([float(k), 1.5, "aided", "vdm-deim"])
+    log.close()
+    files = sorted(p.name for p in tmp_path.iterdir())
+    assert files == ["nav.csv", "nav.csv.1", "nav.csv.2"]  # older ones dropped, never grown without bound
+    assert all(p.stat().st_size <= 2000 for p in tmp_path.iterdir())
+    assert (tmp_path / "nav.csv").read_text().splitlines()[-1] == "199,1.5,aided,vdm-deim"
+    assert NAV_LOG_COLUMNS.count(",") == 18

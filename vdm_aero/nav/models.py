@@ -1,0 +1,42 @@
+"""What every navigation filter is built from, loaded from the user's files: the nominal vehicle, the design
+data set (→ the FADS port model and the stability derivatives), and the port aero models (DEIM, DEIM+NN).
+The benchmark, the replay and the companion service load them the same way."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from vdm_aero.model import AeroModel
+from vdm_aero.nav.design_fit import DesignFlightData, PortPressureModel, StabilityDerivatives
+from vdm_aero.vehicle import VehicleDescription, load_vehicle
+
+__all__ = ["NavModels"]
+
+
+@dataclass(frozen=True)
+class NavModels:
+    vehicle: VehicleDescription
+    derivatives: StabilityDerivatives
+    pressure_model: PortPressureModel
+    models: dict[str, AeroModel]  # "deim", and "deim-nn" when given
+
+    @property
+    def port_names(self) -> tuple[str, ...]:
+        return self.models["deim"].port_names
+
+    @classmethod
+    def load(cls, design_data: Path, deim_dir: Path, nn_dir: Path | None, vehicle: str | Path = "uav-2m"
+             ) -> NavModels:  # fmt: skip
+        """Load the aero models and fit the design-data models (seconds; errors name the file)."""
+        deim = AeroModel.load(deim_dir)
+        models = {"deim": deim}
+        if nn_dir is not None:
+            nn = AeroModel.load(nn_dir)
+            if nn.port_names != deim.port_names:
+                from vdm_aero.errors import ModelError
+
+                raise ModelError(f"{nn_dir}: ports {nn.port_names} differ from {deim_dir}'s {deim.port_names}")
+            models["deim-nn"] = nn
+        data = DesignFlightData.load(design_data, deim.port_names)
+        return cls(load_vehicle(vehicle), StabilityDerivatives.fit(data), PortPressureModel.fit(data), models)

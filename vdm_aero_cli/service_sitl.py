@@ -1,0 +1,283 @@
+"""The companion service against the mock autopilot, as separate processes over UDP loopback (directly, or
+through MAVProxy), scored against the world's truth and against the in-process benchmark on the same flight.
+
+Used by the end-to-end tests, ``make demo`` and ``make bench``. Three processes: ``vdm-aero sitl
+--nav-scenario`` (the world and the mock, with the outage in its GNSS receiver), optionally ``mavproxy.py``
+routing between them, and ``vdm-aero serve``. Nothing of the world reaches the service except MAVLink.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from vdm_aero.geodesy import LocalFrame
+
+__all__ = ["ServiceRun", "bench_reference", "run_service_sitl", "score_service"]
+
+DEPLOY_CONFIG = Path(__file__).resolve().parent.parent / "deploy" / "config.yaml"
+MAVPROXY = Path(sys.executable).parent / "mavproxy.py"
+VDM_AERO = [sys.executable, "-m", "vdm_aero_cli.main"]
+
+
+@dataclass(frozen=True)
+class ServiceRun:
+    """One service-against-mock flight: the models, the benchmark scenario and seed, the link."""
+
+    design_data: Path
+    deim: Path
+    deim_nn: Path | None
+    mode: str = "vdm-deim-nn"
+    scenario: str = "survey"
+    seed: int = 0
+    outage_s: float = 60.0
+    speed: float = 4.0
+    via_mavproxy: bool = False
+    ports_source: str = "named_value_float"
+    streams: tuple[tuple[str, float], ...] = ()  # overrides of deploy/config.yaml's stream rates
+    stop_after_s: float | None = None  # world time to fly (default: to 20 s after the outage)
+    ports_rate_hz: float | None = None  # default: the scenario's (50 Hz)
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def write_config(run: ServiceRun, work: Path, port: int, mag_field_ned_ut: tuple[float, float, float]) -> Path:
+    """deploy/config.yaml with the paths and link of this run (every other key as shipped)."""
+    cfg = yaml.safe_load(DEPLOY_CONFIG.read_text())
+    cfg["connection"] = f"udpin://127.0.0.1:{port}"
+    cfg["models"].update(design_data=str(run.design_data), deim=str(run.deim),
+                         deim_nn=str(run.deim_nn) if run.deim_nn else None)  # fmt: skip
+    cfg["navigation"]["mode"] = run.mode
+    cfg["navigation"]["mag_field_ned_ut"] = [float(v) for v in mag_field_ned_ut]
+    cfg["ports"]["source"] = run.ports_source
+    cfg["streams"].update(dict(run.streams))
+    cfg["state"]["file"] = str(work / "state" / "filter-state.npz")
+    cfg["nav_log"]["file"] = str(work / "state" / "nav.csv")
+    cfg["status_every_s"] = 5
+    path = work / "config.yaml"
+    path.write_text(yaml.safe_dump(cfg, sort_keys=False))
+    return path
+
+
+def _cpu_s(pid: int) -> float:
+    """User + system CPU time of a process [s] (/proc/PID/stat fields 14 and 15, in clock ticks)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _peak_rss_mb(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024.0
+    return math.nan
+
+
+def _terminate(proc: subprocess.Popen[bytes], timeout_s: float = 20.0) -> int:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+    try:
+        return proc.wait(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        return proc.wait()
+
+
+def start_service(config: Path, work: Path, *, env: dict[str, str] | None = None) -> subprocess.Popen[bytes]:
+    log = open(work / "serve.log", "ab")  # noqa: SIM115 - the child owns it for its lifetime
+    return subprocess.Popen([*VDM_AERO, "serve", "--config", str(config), "--summary", str(work / "summary.json")],
+                            stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
+                            env={**os.environ, **(env or {})})  # fmt: skip
+
+
+def run_service_sitl(run: ServiceRun, work: Path, *, mag_field_ned_ut: tuple[float, float, float],
+                     timeout_s: float = 600.0) -> dict[str, Any]:  # fmt: skip
+    """Fly ``run`` with the service and the mock as processes; returns paths, outage window and the summaries."""
+    from vdm_aero_cli.nav_bench import AFTER_S
+
+    work.mkdir(parents=True, exist_ok=True)
+    svc_port = free_udp_port()
+    config = write_config(run, work, svc_port, mag_field_ned_ut)
+    service = start_service(config, work)
+    procs: list[subprocess.Popen[bytes]] = []
+    try:
+        ap_port = free_udp_port()
+        if run.via_mavproxy:
+            ap_url = f"udpin:127.0.0.1:{ap_port}"
+            procs.append(subprocess.Popen(
+                [sys.executable, str(MAVPROXY), f"--master=udpout:127.0.0.1:{ap_port}",
+                 f"--out=udpout:127.0.0.1:{svc_port}", "--daemon", "--non-interactive", "--no-state"],
+                cwd=work, stdin=subprocess.DEVNULL, stdout=open(work / "mavproxy.log", "wb"),  # noqa: SIM115
+                stderr=subprocess.STDOUT))  # fmt: skip
+        else:
+            ap_url = f"udpout:127.0.0.1:{svc_port}"
+        time.sleep(1.0)  # the service binds its port and loads its models (~1 s) before the autopilot talks
+        cmd = [*VDM_AERO, "sitl", "--nav-scenario", run.scenario, "--seed", str(run.seed), "--outage-s",
+               f"{run.outage_s:g}", "--ports-model", str(run.deim), "--connect", ap_url, "--speed", f"{run.speed:g}",
+               "--truth", str(work / "truth.npz"), "--json"]  # fmt: skip
+        if run.ports_source == "debug_float_array":
+            cmd.append("--ports-debug-array")
+        if run.stop_after_s is not None:
+            cmd += ["--duration-s", f"{run.stop_after_s:g}"]
+        if run.ports_rate_hz is not None:
+            cmd += ["--ports-rate-hz", f"{run.ports_rate_hz:g}"]
+        t0 = time.monotonic()
+        cpu0 = _cpu_s(service.pid)
+        mock = subprocess.run(cmd, capture_output=True, timeout=timeout_s, check=False)
+        wall = time.monotonic() - t0
+        cpu = _cpu_s(service.pid) - cpu0
+        rss = _peak_rss_mb(service.pid)
+        if mock.returncode != 0:
+            raise RuntimeError(f"the mock autopilot failed: {mock.stderr.decode(errors='replace')[-2000:]}")
+        out = mock.stdout.decode()
+        first = out.splitlines()[0]  # "nav scenario survey seed 0: GNSS outage 150.99 … 210.99 s"
+        a, b = (float(v) for v in first.split("outage ")[1].removesuffix(" s").split(" … "))
+        mock_summary = json.loads(out[out.index("{") :])
+    finally:
+        rc = _terminate(service)
+        for p in procs:
+            _terminate(p)
+    summary = json.loads((work / "summary.json").read_text()) if (work / "summary.json").exists() else {}
+    return {"config": config, "work": work, "outage": (a, b), "after_s": AFTER_S, "service_rc": rc,
+            "service": summary, "mock": mock_summary, "wall_s": wall, "service_cpu_pct": 100.0 * cpu / wall,
+            "service_peak_rss_mb": rss,
+            "serve_log": (work / "serve.log").read_text(errors="replace")}  # fmt: skip
+
+
+def score_service(result: dict[str, Any]) -> dict[str, Any]:
+    """The service's horizontal error against the truth: from its navigation log at the outage end, and from
+    the GPS_INPUT messages the mock received during the outage."""
+    work: Path = result["work"]
+    a, b = result["outage"]
+    z = np.load(work / "truth.npz", allow_pickle=False)
+    home = LocalFrame(float(z["home_lat_deg"]), float(z["home_lon_deg"]), float(z["home_alt_m"]))
+    t, pos = z["t_s"], z["pos_ned_m"]
+
+    def truth_ne(tq: np.ndarray) -> np.ndarray:
+        return np.column_stack([np.interp(tq, t, pos[:, i]) for i in range(2)])
+
+    rows = [r.split(",") for r in (work / "state" / "nav.csv").read_text().splitlines() if not r.startswith("#")]
+    boot = np.array([float(r[1]) for r in rows])
+    ned = np.asarray(home.to_ned(np.array([float(r[2]) for r in rows]), np.array([float(r[3]) for r in rows]),
+                                 np.array([float(r[4]) for r in rows]))).reshape(-1, 3)  # fmt: skip
+    err = np.linalg.norm(ned[:, :2] - truth_ne(boot), axis=1)
+    inside = (boot >= a) & (boot < b)
+    i_end = int(np.flatnonzero(boot < b)[-1]) if (boot < b).any() else -1
+    out: dict[str, Any] = {
+        "final_error_m": float(err[i_end]) if i_end >= 0 and boot[i_end] > b - 0.5 else math.nan,
+        "max_error_m": float(err[inside].max()) if inside.any() else math.nan,
+        "log_rows": len(rows),
+        # 2 s after the outage: the first fixes must have pulled the position back (no overshoot, no rejection)
+        "error_after_reacquisition_m": float(np.interp(b + 2.0, boot, err)) if boot[-1] > b + 2.0 else math.nan,
+    }
+    if "gps_input_time_usec" in z.files and len(z["gps_input_time_usec"]):
+        tg = z["gps_input_time_usec"] * 1e-6
+        g = np.asarray(home.to_ned(z["gps_input_lat_deg"], z["gps_input_lon_deg"], z["gps_input_alt_m"])).reshape(-1, 3)
+        eg = np.linalg.norm(g[:, :2] - truth_ne(tg), axis=1)
+        fix_types = sorted({int(v) for v in z["gps_input_fix_type"]})
+        out.update(gps_input_count=len(tg), gps_input_first_s=float(tg[0]), gps_input_last_s=float(tg[-1]),
+                   gps_input_final_error_m=float(eg[-1]), gps_input_fix_types=fix_types,
+                   gps_input_h_acc_end_m=float(z["gps_input_h_acc_m"][-1]))  # fmt: skip
+    else:
+        out["gps_input_count"] = 0
+    return out
+
+
+def site_mag_field_ut(run: ServiceRun) -> tuple[float, float, float]:
+    """The Earth's field at the scenario's site [µT NED]: what an operator puts in the config from the WMM."""
+    from vdm_aero_cli.nav_bench import bench_scenario
+
+    meta = bench_scenario(run.scenario, run.seed, run.deim, 1.0)[1]
+    x, y, zz = (float(v) * 1e6 for v in meta["mag_field_ned_t"])
+    return x, y, zz
+
+
+def bench_reference(run: ServiceRun) -> dict[str, Any]:
+    """The in-process benchmark's metrics for the same scenario, seed, outage and mode (the same models)."""
+    from vdm_aero.nav.models import NavModels
+    from vdm_aero_cli.nav_bench import AFTER_S, OUTAGE_START_S, NavArtifacts, _flight, run_filters
+
+    art = NavArtifacts(run.design_data, run.deim, run.deim_nn or run.deim)
+    duration = OUTAGE_START_S[1] + run.outage_s + AFTER_S + 5.0
+    sensors, truth, meta, t_out = _flight(run.scenario, run.seed, art, duration)
+    models = NavModels.load(run.design_data, run.deim, run.deim_nn)
+    res = run_filters(sensors, truth, meta, t_out, [run.outage_s], [run.mode], models)
+    m = res["outages"][f"{run.outage_s:g}"][run.mode]
+    return {"final_error_m": m["final_error_m"], "max_error_m": m["max_error_m"], "t_out": t_out}
+
+
+def write_service_report(run: ServiceRun, res: dict[str, Any], score: dict[str, Any], ref: dict[str, Any],
+                         out: Path) -> dict[str, Path]:  # fmt: skip
+    """Markdown + a plot of the service's error through the outage (its log and the GPS_INPUT it sent)."""
+    from vdm_aero_cli.plots import _pyplot
+
+    out.mkdir(parents=True, exist_ok=True)
+    a, b = res["outage"]
+    svc = res["service"]
+    lat = svc.get("latency_ms", {})
+    md = [
+        f"# The service against the mock autopilot: {run.scenario}, seed {run.seed}, {run.outage_s:g} s outage",
+        "",
+        f"`vdm-aero serve` ({run.mode}) and `vdm-aero sitl` as separate processes over UDP loopback"
+        f"{' through MAVProxy' if run.via_mavproxy else ''}, world at {run.speed:g}× real time; "
+        f"GNSS outage {a:.1f} … {b:.1f} s.",
+        "",
+        "| | horizontal error at the outage end [m] | max in the outage [m] |",
+        "|---|---|---|",
+        f"| service (navigation log) | {score['final_error_m']:.1f} | {score['max_error_m']:.1f} |",
+        f"| service (last GPS_INPUT the autopilot received) | {score.get('gps_input_final_error_m', math.nan):.1f} | |",
+        f"| in-process benchmark, same flight and mode | {ref['final_error_m']:.1f} | {ref['max_error_m']:.1f} |",
+        "",
+        f"GPS_INPUT received by the autopilot: {score['gps_input_count']} (fix types "
+        f"{score.get('gps_input_fix_types')}, horizontal accuracy sent at the end "
+        f"{score.get('gps_input_h_acc_end_m', math.nan):.1f} m). Port frames {svc['port_frames']}. "
+        f"Last port message in → outputs: p50 {lat.get('p50', math.nan):.2f} ms, p99 {lat.get('p99', math.nan):.2f} ms "
+        f"(at {run.speed:g}× real time, three processes on two cores). Service CPU {res['service_cpu_pct']:.1f} % of "
+        f"one core, peak RSS {res['service_peak_rss_mb']:.0f} MB; torch loaded: {svc.get('torch_loaded')}.",
+    ]
+    md_path = out / "service.md"
+    md_path.write_text("\n".join(md) + "\n")
+    z = np.load(res["work"] / "truth.npz", allow_pickle=False)
+    home = LocalFrame(float(z["home_lat_deg"]), float(z["home_lon_deg"]), float(z["home_alt_m"]))
+    rows = [r.split(",") for r in (res["work"] / "state" / "nav.csv").read_text().splitlines() if r[0] != "#"]
+    boot = np.array([float(r[1]) for r in rows])
+    ned = np.asarray(home.to_ned(np.array([float(r[2]) for r in rows]), np.array([float(r[3]) for r in rows]),
+                                 np.array([float(r[4]) for r in rows]))).reshape(-1, 3)  # fmt: skip
+    truth = np.column_stack([np.interp(boot, z["t_s"], z["pos_ned_m"][:, i]) for i in range(2)])
+    err = np.linalg.norm(ned[:, :2] - truth, axis=1)
+    sig = np.array([float(r[14]) for r in rows])
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(9, 4.5))
+    ax.plot(boot, err, color="tab:blue", label="service: horizontal error [m]")
+    ax.plot(boot, 2.0 * sig, color="tab:blue", ls=":", label="service: 2σ [m]")
+    if score["gps_input_count"]:
+        tg = z["gps_input_time_usec"] * 1e-6
+        g = np.asarray(home.to_ned(z["gps_input_lat_deg"], z["gps_input_lon_deg"], z["gps_input_alt_m"])).reshape(-1, 3)
+        tr = np.column_stack([np.interp(tg, z["t_s"], z["pos_ned_m"][:, i]) for i in range(2)])
+        eg = np.linalg.norm(g[:, :2] - tr, axis=1)
+        ax.plot(tg, eg, ".", color="tab:red", ms=3, label="GPS_INPUT received by the autopilot")
+    ax.axvspan(a, b, color="tab:red", alpha=0.1, label="GNSS outage")
+    ax.plot([b], [ref["final_error_m"]], "k*", ms=12, label="in-process benchmark at the outage end")
+    ax.set(xlabel="autopilot time [s]", ylabel="m", title=f"service vs mock: {run.scenario} seed {run.seed}",
+           xlim=(a - 30.0, b + 20.0), ylim=(0, max(float(err.max()), ref["final_error_m"]) * 1.2 + 1.0))  # fmt: skip
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    png = out / "service-outage.png"
+    fig.savefig(png, dpi=110)
+    plt.close(fig)
+    return {"markdown": md_path, "plot": png}
