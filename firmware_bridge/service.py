@@ -365,7 +365,10 @@ class CompanionService:
         wind_var = float(np.max(np.linalg.eigvalsh(p[w, w][:2, :2])))
         unix = (self._unix_minus_boot_s + self._boot_now_s) if self._unix_minus_boot_s is not None else time.time()
         o = self.cfg.outputs
-        fix = outputs.fix_type_from(sig_h, healthy=True, max_sigma_3d_m=o.max_sigma_3d_m, max_sigma_m=o.max_sigma_m)
+        fix = outputs.fix_type_from(sig_h, healthy=f.initialised, max_sigma_3d_m=o.max_sigma_3d_m,
+                                    max_sigma_m=o.max_sigma_m)  # fmt: skip
+        if f.fallback:  # the ports give no air data: airspeed dead reckoning at best, a 2-D fix at most
+            fix = min(fix, mavlink2.GPS_FIX_TYPE_2D_FIX)
         return outputs.Solution(
             boot_s=self._boot_now_s, unix_s=unix, lat_deg=lat, lon_deg=lon, alt_m=alt, p_ned_m=x.p_ned.copy(),
             v_ned_m_s=x.v_ned.copy(), q_nb=x.q_nb.copy(), sigma_h_m=sig_h, sigma_v_m=math.sqrt(max(p[2, 2], 0.0)),
