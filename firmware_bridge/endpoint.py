@@ -63,6 +63,7 @@ class MavEndpoint:
         self.bad_frames = 0
         self.rejected_unsigned = 0
         self.sent: dict[str, int] = {}
+        self.received_at = 0.0
         if signing is not None:
             s = self.mav.signing
             s.secret_key = signing.key
@@ -89,6 +90,7 @@ class MavEndpoint:
     def poll(self, timeout_s: float) -> list[MavlinkMessage]:
         """Messages decoded from what arrived within ``timeout_s`` (returns as soon as bytes arrive)."""
         data = self.transport.recv(timeout_s)
+        self.received_at = time.monotonic()  # before decoding: latency is counted from the bytes' arrival
         if not data:
             return []
         out = []

@@ -147,7 +147,7 @@ class CompanionService:
                 now = time.monotonic()
                 timeout = max(min(POLL_MAX_S, min(self._next.values(), default=now) - now), 0.0)
                 msgs = self.ep.poll(timeout)
-                t_in = time.monotonic()
+                t_in = self.ep.received_at
                 for msg in msgs:
                     self._dispatch(msg, t_in)
                 self._periodic(time.monotonic())

@@ -16,7 +16,7 @@ import socket
 import subprocess
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -110,6 +110,9 @@ def run_service_sitl(run: ServiceRun, work: Path, *, mag_field_ned_ut: tuple[flo
     """Fly ``run`` with the service and the mock as processes; returns paths, outage window and the summaries."""
     from vdm_aero_cli.nav_bench import AFTER_S
 
+    work = work.resolve()  # the config's relative paths would be taken relative to the config file
+    run = replace(run, design_data=run.design_data.resolve(), deim=run.deim.resolve(),
+                  deim_nn=run.deim_nn.resolve() if run.deim_nn is not None else None)  # fmt: skip
     work.mkdir(parents=True, exist_ok=True)
     svc_port = free_udp_port()
     config = write_config(run, work, svc_port, mag_field_ned_ut)
