@@ -50,6 +50,7 @@ STREAM_CHECK_S = 3.0
 STREAM_MIN_FRACTION = 0.5  # a stream arriving at under half its requested rate is requested again
 AUTOPILOT_LOST_S = 3.0  # no autopilot HEARTBEAT this long: the link is down
 POLL_MAX_S = 0.02
+PERIODIC_S = 0.005
 ERROR_LOG_EVERY_S = 10.0
 LATENCY_WINDOW = 20000
 AUTOPILOT_COMPONENT = mavlink2.MAV_COMP_ID_AUTOPILOT1
@@ -114,6 +115,7 @@ class CompanionService:
         self._last_ap_heartbeat = -math.inf
         self._unix_minus_boot_s: float | None = None
         self._last_pitot_dp = math.nan
+        self._last_mag: tuple[float, float, float] | None = None
         self._last_baro_ms = -1
         self._last_gps_us = -1
         self._boot_now_s = -math.inf  # the autopilot's time of the latest IMU sample
@@ -142,6 +144,7 @@ class CompanionService:
         self.notify.notify(ready=1, status=f"listening on {self.transport.description}")
         self._print(f"vdm-aero serve: {self.cfg.mode} on {self.transport.description}, {len(self.port_names)} "
                     f"ports via {self.cfg.ports.source}, solution output {self.cfg.outputs.solution}")  # fmt: skip
+        next_periodic = 0.0
         try:
             while not should_stop():
                 now = time.monotonic()
@@ -150,7 +153,10 @@ class CompanionService:
                 t_in = self.ep.received_at
                 for msg in msgs:
                     self._dispatch(msg, t_in)
-                self._periodic(time.monotonic())
+                now = time.monotonic()
+                if now >= next_periodic:  # ~1000 polls a second at 400 Hz IMU: the upkeep needs 200
+                    next_periodic = now + PERIODIC_S
+                    self._periodic(now)
         finally:
             self.notify.notify(stopping=1, status="saving the filter state")
             self._save_state()
@@ -222,8 +228,9 @@ class CompanionService:
             self._next.pop("streams", None)
             self._last_baro_ms = self._last_gps_us = -1
         self._boot_now_s = s.t_s
-        if s.mag_b_ut is not None and self.driver is not None:
-            self.driver.mag(self.clock.filter_s(s.t_s), s.mag_b_ut)
+        if s.mag_b_ut is not None and s.mag_b_ut != self._last_mag and self.driver is not None:
+            self._last_mag = s.mag_b_ut  # HIGHRES_IMU repeats a slower magnetometer's sample: pass new ones
+            self.driver.mag(self.clock.filter_s(s.t_s), np.array(s.mag_b_ut))
         step = self.imu_int.add(s)
         if step is not None and self.driver is not None:
             t_end, inc = step
@@ -332,12 +339,13 @@ class CompanionService:
         qbar = None
         if self.cfg.ports.dynamic_pressure == "pitot" and math.isfinite(self._last_pitot_dp):
             qbar = self._last_pitot_dp
-        solved = self.driver.ports(self.clock.filter_s(fr.t_s), dp, qbar)
+        solved = self.driver.solve_ports(self.clock.filter_s(fr.t_s), dp, qbar)
         if solved is None:
             return
-        now = time.monotonic()
-        self._outputs(solved, now)
+        # the aerodynamic outputs first (they need the solved frame, not the filter), then the filter update
+        self._outputs(solved)
         self.stats.latency_s.append(time.monotonic() - fr.arrived_at)
+        self.driver.fuse_ports(solved)
 
     def _on_system_time(self, msg: MavlinkMessage, t_in: float) -> None:
         if self._from_autopilot(msg) and msg.time_unix_usec > 0:
@@ -376,7 +384,7 @@ class CompanionService:
             sigma_wind_m_s=math.sqrt(max(wind_var, 0.0)), fix_type=fix,
         )  # fmt: skip
 
-    def _outputs(self, frame: PortFrame, now: float) -> None:
+    def _outputs(self, frame: PortFrame) -> None:
         o = self.cfg.outputs
         if o.named_values_hz > 0 and self._due_ap("named", 1.0 / o.named_values_hz):
             self._send_named_values(frame)

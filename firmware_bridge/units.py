@@ -28,6 +28,7 @@ __all__ = [
 ]
 
 G0_M_S2 = 9.80665  # ArduPilot's milli-g uses standard gravity
+MG_TO_M_S2 = G0_M_S2 * 1e-3
 HPA_TO_PA = 100.0
 GAUSS_TO_UT = 100.0  # 1 G = 1e-4 T = 100 µT
 MGAUSS_TO_UT = 0.1
@@ -35,13 +36,19 @@ HIGHRES_MAG_BITS = 0x1C0  # HIGHRES_IMU fields_updated: x/y/z mag
 UINT16_UNKNOWN = 65535
 
 
+Vec3 = tuple[float, float, float]
+
+
 @dataclass(frozen=True)
 class ImuSample:
+    """Plain floats, not arrays: 400 samples a second, summed into 50 Hz increments (numpy per sample costs
+    more than the sums)."""
+
     t_s: float  # autopilot time of the sample [s]
-    gyro_b_rad_s: F64Array
-    accel_b_m_s2: F64Array
+    gyro_b_rad_s: Vec3
+    accel_b_m_s2: Vec3
     temperature_c: float
-    mag_b_ut: F64Array | None  # the magnetometer when the message carries it [µT]
+    mag_b_ut: Vec3 | None  # the magnetometer when the message carries it [µT]
 
 
 @dataclass(frozen=True)
@@ -73,11 +80,11 @@ class ServoPwm:
 def from_highres_imu(m: MavlinkMessage) -> ImuSample:
     mag = None
     if m.fields_updated & HIGHRES_MAG_BITS == HIGHRES_MAG_BITS:
-        mag = np.array([m.xmag, m.ymag, m.zmag], dtype=np.float64) * GAUSS_TO_UT
+        mag = (m.xmag * GAUSS_TO_UT, m.ymag * GAUSS_TO_UT, m.zmag * GAUSS_TO_UT)
     return ImuSample(
         t_s=m.time_usec * 1e-6,
-        gyro_b_rad_s=np.array([m.xgyro, m.ygyro, m.zgyro], dtype=np.float64),
-        accel_b_m_s2=np.array([m.xacc, m.yacc, m.zacc], dtype=np.float64),
+        gyro_b_rad_s=(m.xgyro, m.ygyro, m.zgyro),
+        accel_b_m_s2=(m.xacc, m.yacc, m.zacc),
         temperature_c=float(m.temperature),
         mag_b_ut=mag,
     )
@@ -87,10 +94,10 @@ def from_scaled_imu(m: MavlinkMessage) -> ImuSample:
     """SCALED_IMU: milli-g, mrad/s, milligauss, cdegC (0 = unknown)."""
     return ImuSample(
         t_s=m.time_boot_ms * 1e-3,
-        gyro_b_rad_s=np.array([m.xgyro, m.ygyro, m.zgyro], dtype=np.float64) * 1e-3,
-        accel_b_m_s2=np.array([m.xacc, m.yacc, m.zacc], dtype=np.float64) * (G0_M_S2 * 1e-3),
+        gyro_b_rad_s=(m.xgyro * 1e-3, m.ygyro * 1e-3, m.zgyro * 1e-3),
+        accel_b_m_s2=(m.xacc * MG_TO_M_S2, m.yacc * MG_TO_M_S2, m.zacc * MG_TO_M_S2),
         temperature_c=m.temperature * 0.01 if m.temperature else 15.0,
-        mag_b_ut=np.array([m.xmag, m.ymag, m.zmag], dtype=np.float64) * MGAUSS_TO_UT,
+        mag_b_ut=(m.xmag * MGAUSS_TO_UT, m.ymag * MGAUSS_TO_UT, m.zmag * MGAUSS_TO_UT),
     )
 
 

@@ -160,3 +160,14 @@ def test_turbulence_intensity_recovers_a_gauss_markov_gust() -> None:
     for _ in range(1000):
         out = calm.observe(np.zeros(3), np.zeros(3), dt)
     np.testing.assert_array_equal(out, TURBULENCE_SIGMA_BOUNDS_M_S[0])
+
+
+def test_fads_polynomial_scalar_path_is_the_vector_one() -> None:
+    from vdm_aero.nav.design_fit import _angle_terms
+
+    rng = np.random.default_rng(7)
+    for a, b in rng.uniform(-0.4, 0.4, size=(20, 2)):
+        fast = _angle_terms(float(a), float(b))
+        general = _angle_terms(np.array([a]), np.array([b]))
+        for f, g in zip(fast, general, strict=True):
+            np.testing.assert_allclose(f, g[0], rtol=1e-15, atol=1e-15)

@@ -97,9 +97,16 @@ class NavDriver:
 
     def ports(self, t_s: float, dp_pa: F64Array, qbar_pa: float | None = None) -> PortFrame | None:
         """One port frame (Δp [Pa] in the models' port order, NaN for missing ports; ``qbar_pa``: a dynamic
-        pressure for Cp other than the FADS solve's, e.g. the pitot's). Health is checked on
-        every frame; the air data and force models are solved at :data:`PORT_SOLVE_HZ` and the solved frame
-        is returned (None for frames only checked, or without a front end)."""
+        pressure for Cp other than the FADS solve's, e.g. the pitot's): :meth:`solve_ports`, then
+        :meth:`fuse_ports`. Returns the solved frame (None for frames only checked, or without a front end)."""
+        frame = self.solve_ports(t_s, dp_pa, qbar_pa)
+        if frame is not None:
+            self.fuse_ports(frame)
+        return frame
+
+    def solve_ports(self, t_s: float, dp_pa: F64Array, qbar_pa: float | None = None) -> PortFrame | None:
+        """Port health on every frame; the air data and force models at :data:`PORT_SOLVE_HZ` (the solved
+        frame is returned, None otherwise). The aerodynamic outputs need only this, not the filter."""
         self.t_s = t_s
         fe = self.frontend
         if fe is None:
@@ -110,6 +117,9 @@ class NavDriver:
         self._next_port_solve = t_s + 1.0 / PORT_SOLVE_HZ - 1e-6
         frame = fe.process(t_s, dp_pa, self._rho_kg_m3, self._omega_b, self._controls_rad, ok, qbar_pa)
         self.last_frame = frame
+        return frame
+
+    def fuse_ports(self, frame: PortFrame) -> None:
+        """Fuse a solved frame into every filter."""
         for f in self.filters.values():
             f.ports(frame)
-        return frame
