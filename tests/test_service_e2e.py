@@ -150,3 +150,17 @@ def test_autopilot_reboot_debug_array_ports_and_sd_notify(design_deim12: dict[st
     assert msgs[0].startswith("READY=1") and msgs[-1].startswith("STOPPING=1")
     assert sum(m == "WATCHDOG=1" for m in msgs) >= 20  # every 0.5 s of ~25 s
     assert any(m.startswith("STATUS=status: vdm-deim gnss=") for m in msgs)
+
+
+def test_signing_required_on_both_sides(design_deim12: dict[str, Path], tmp_path: Path) -> None:
+    """Both ends sign and require signatures: the mock accepts everything the service sends (its HEARTBEAT,
+    stream requests, TIMESYNC), the service everything the mock sends, and navigation runs."""
+    key = bytes(range(32)).hex()
+    run = _run(design_deim12, scenario="survey", seed=4, speed=4.0, stop_after_s=40.0, signing_key_hex=key)
+    res = run_service_sitl(run, tmp_path / "signed", mag_field_ned_ut=site_mag_field_ut(run))
+    svc, mock = res["service"], res["mock"]
+    assert res["service_rc"] == 0, res["serve_log"][-3000:]
+    assert mock["rejected_frames"] == 0 and mock["link_active"], mock
+    assert mock["received"].get("COMMAND_LONG", 0) >= 5  # the signed stream requests were taken
+    assert svc["rejected_unsigned"] == 0 and svc["health"]["initialised"], svc
+    assert svc["port_frames"]["complete"] > 500

@@ -49,6 +49,7 @@ class ServiceRun:
     streams: tuple[tuple[str, float], ...] = ()  # overrides of deploy/config.yaml's stream rates
     stop_after_s: float | None = None  # world time to fly (default: to 20 s after the outage)
     ports_rate_hz: float | None = None  # default: the scenario's (50 Hz)
+    signing_key_hex: str | None = None  # MAVLink 2 signing required on both sides (64 hex digits)
 
 
 def free_udp_port() -> int:
@@ -70,6 +71,9 @@ def write_config(run: ServiceRun, work: Path, port: int, mag_field_ned_ut: tuple
     cfg["state"]["file"] = str(work / "state" / "filter-state.npz")
     cfg["nav_log"]["file"] = str(work / "state" / "nav.csv")
     cfg["status_every_s"] = 5
+    if run.signing_key_hex is not None:
+        (work / "signing.key").write_text(run.signing_key_hex + "\n")
+        cfg["signing"] = {"key_file": str(work / "signing.key"), "require": True}
     path = work / "config.yaml"
     path.write_text(yaml.safe_dump(cfg, sort_keys=False))
     return path
@@ -139,6 +143,8 @@ def run_service_sitl(run: ServiceRun, work: Path, *, mag_field_ned_ut: tuple[flo
             cmd += ["--duration-s", f"{run.stop_after_s:g}"]
         if run.ports_rate_hz is not None:
             cmd += ["--ports-rate-hz", f"{run.ports_rate_hz:g}"]
+        if run.signing_key_hex is not None:
+            cmd += ["--signing-key", run.signing_key_hex, "--require-signing"]
         t0 = time.monotonic()
         cpu0 = _cpu_s(service.pid)
         mock = subprocess.run(cmd, capture_output=True, timeout=timeout_s, check=False)
