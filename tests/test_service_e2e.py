@@ -52,7 +52,10 @@ def test_service_against_the_mock_matches_the_benchmark(design_deim12: dict[str,
     assert abs(err - ref_err) <= TOLERANCE_REL * ref_err + TOLERANCE_M, (err, ref_err)
     assert abs(score["gps_input_final_error_m"] - err) < 5.0  # what the autopilot received is that solution
     assert score["error_after_reacquisition_m"] < 5.0, score  # GNSS back: the first fixes correct the drift
-    assert svc["health"]["rejected"].get("gnss_pos", 0) == 0, svc["health"]
+    # at most the reacquisition fix itself is rejected (then the position is reset to it): vdm-deim's covariance
+    # is overconfident on the as-built aircraft (its NEES, docs/navigation.md), so the drift can exceed its gate.
+    # The reacquisition overshoot this guards against rejected every fix for 10 s (52 on survey seed 0).
+    assert svc["health"]["rejected"].get("gnss_pos", 0) <= 1, svc["health"]
     # honest accuracies: the error at the end is inside the (inflated) horizontal accuracy sent
     assert score["gps_input_final_error_m"] <= score["gps_input_h_acc_end_m"]
     assert "autopilot 1/1 heard" in res["serve_log"] and "status: vdm-deim gnss=" in res["serve_log"]
