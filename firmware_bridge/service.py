@@ -42,7 +42,7 @@ from vdm_aero.nav.ports_frontend import PortFrame, PortFrontEnd
 from vdm_aero.nav.state import IDX
 from vdm_aero.rotation import euler_from_quat
 
-__all__ = ["CompanionService", "ServiceStats"]
+__all__ = ["CompanionService", "ServiceStats", "port_names"]
 
 HEARTBEAT_S = 1.0
 TIMESYNC_S = 2.0
@@ -78,6 +78,16 @@ class ServiceStats:
                 "n": len(a)}  # fmt: skip
 
 
+def port_names(cfg: ServiceConfig, models: NavModels) -> tuple[str, ...]:
+    """The ports in the order the autopilot sends them: ``ports.names``, or the model's; the same set as the
+    model's or a one-line error."""
+    names = cfg.ports.names or models.port_names
+    if set(names) != set(models.port_names):
+        raise UserInputError(f"{cfg.path}: ports.names {list(names)} are not the model's ports "
+                             f"{list(models.port_names)}")  # fmt: skip
+    return tuple(names)
+
+
 class CompanionService:
     """The service: ``run(should_stop)`` until ``should_stop()`` is true; see the module docstring."""
 
@@ -88,11 +98,7 @@ class CompanionService:
         self.notify = notify or SdNotify(None)
         self.watchdog_s = watchdog_s
         self.models = models or NavModels.load(cfg.design_data, cfg.deim_model, cfg.nn_model, cfg.vehicle)
-        names = cfg.ports.names or self.models.port_names
-        if set(names) != set(self.models.port_names):
-            raise UserInputError(f"{cfg.path}: ports.names {list(names)} are not the model's ports "
-                                 f"{list(self.models.port_names)}")  # fmt: skip
-        self.port_names = tuple(names)
+        self.port_names = port_names(cfg, self.models)
         self._port_order = np.array([self.port_names.index(n) for n in self.models.port_names])
         signing = None
         if cfg.signing_key_file is not None:
@@ -168,6 +174,8 @@ class CompanionService:
     def _dispatch(self, msg: MavlinkMessage, t_in: float) -> None:
         kind = msg.get_type()
         self.stats.received[kind] = self.stats.received.get(kind, 0) + 1
+        if kind in self._stream_seen and self._from_autopilot(msg):
+            self._stream_seen[kind] += 1  # the requested streams' rates, checked every STREAM_CHECK_S
         handler = self._handlers.get(kind)
         if handler is None:
             return
@@ -239,18 +247,15 @@ class CompanionService:
 
     def _on_highres_imu(self, msg: MavlinkMessage, t_in: float) -> None:
         if self._from_autopilot(msg):
-            self._stream_seen["HIGHRES_IMU"] = self._stream_seen.get("HIGHRES_IMU", 0) + 1
             self._imu(units.from_highres_imu(msg))
 
     def _on_scaled_imu(self, msg: MavlinkMessage, t_in: float) -> None:
         if self._from_autopilot(msg) and "HIGHRES_IMU" not in self.cfg.streams:
-            self._stream_seen["SCALED_IMU"] = self._stream_seen.get("SCALED_IMU", 0) + 1
             self._imu(units.from_scaled_imu(msg))
 
     def _on_scaled_pressure(self, msg: MavlinkMessage, t_in: float) -> None:
         if not self._from_autopilot(msg):
             return
-        self._stream_seen["SCALED_PRESSURE"] = self._stream_seen.get("SCALED_PRESSURE", 0) + 1
         if msg.time_boot_ms == self._last_baro_ms:
             return  # the same sample again (the stream runs faster than the sensor)
         self._last_baro_ms = msg.time_boot_ms
@@ -266,7 +271,6 @@ class CompanionService:
     def _on_gps_raw_int(self, msg: MavlinkMessage, t_in: float) -> None:
         if not self._from_autopilot(msg):
             return
-        self._stream_seen["GPS_RAW_INT"] = self._stream_seen.get("GPS_RAW_INT", 0) + 1
         fix = units.from_gps_raw_int(msg)
         if fix is None or msg.time_usec == self._last_gps_us or not math.isfinite(self._boot_now_s):
             return
@@ -309,7 +313,6 @@ class CompanionService:
     def _on_servo_output_raw(self, msg: MavlinkMessage, t_in: float) -> None:
         if not self._from_autopilot(msg) or self.driver is None or not math.isfinite(self._boot_now_s):
             return
-        self._stream_seen["SERVO_OUTPUT_RAW"] = self._stream_seen.get("SERVO_OUTPUT_RAW", 0) + 1
         s = units.from_servo_output_raw(msg)
         ail, ele, rud, thr = self.models.vehicle.servos.deflections_rad(s.pwm_us[None, :4])
         controls = np.array([ail[0], ele[0], rud[0]])
@@ -319,7 +322,7 @@ class CompanionService:
     def _on_named_value_float(self, msg: MavlinkMessage, t_in: float) -> None:
         if self.cfg.ports.source != "named_value_float" or not self._from_autopilot(msg):
             return
-        name = msg.name.rstrip("\0") if isinstance(msg.name, str) else msg.name.decode("ascii", "replace")
+        name = msg.name if isinstance(msg.name, str) else msg.name.decode("ascii", "replace")
         for fr in self.assembler.add(int(msg.time_boot_ms), name.rstrip("\0"), float(msg.value), t_in):
             self._port_frame(fr)
 

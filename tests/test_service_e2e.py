@@ -8,6 +8,7 @@ the stream timing of a real link."""
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -61,8 +62,12 @@ def test_service_against_the_mock_matches_the_benchmark(design_deim12: dict[str,
     assert "autopilot 1/1 heard" in res["serve_log"] and "status: vdm-deim gnss=" in res["serve_log"]
 
 
-@pytest.mark.skipif(not MAVPROXY.exists(), reason="MAVProxy is not installed (the Makefile installs MAVProxy==1.8.75)")
 def test_through_mavproxy_sigterm_saves_and_a_restart_restores(design_deim12: dict[str, Path], tmp_path: Path) -> None:
+    if not MAVPROXY.exists():  # the Makefile installs it: missing in CI is a failure, on a bare venv a skip
+        reason = f"MAVProxy is not installed ({MAVPROXY}; the Makefile installs MAVProxy==1.8.75)"
+        if os.environ.get("CI"):
+            pytest.fail(reason)
+        pytest.skip(reason)
     work = tmp_path / "mavproxy"
     run = _run(design_deim12, scenario="survey", seed=2, speed=4.0, via_mavproxy=True, stop_after_s=70.0)
     mag = site_mag_field_ut(run)

@@ -11,8 +11,6 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from vdm_aero.errors import UserInputError
-
 
 def register(sub: Any) -> None:
     p = sub.add_parser(
@@ -38,10 +36,9 @@ def run_serve(args: argparse.Namespace) -> int:
 
         if cfg.signing_key_file is not None:
             load_signing_key(cfg.signing_key_file, require=cfg.signing_require)
-        models = NavModels.load(cfg.design_data, cfg.deim_model, cfg.nn_model, cfg.vehicle)
-        names = cfg.ports.names or models.port_names
-        if set(names) != set(models.port_names):
-            raise UserInputError(f"{cfg.path}: ports.names {list(names)} are not the model's {list(models.port_names)}")
+        from firmware_bridge.service import port_names
+
+        names = port_names(cfg, NavModels.load(cfg.design_data, cfg.deim_model, cfg.nn_model, cfg.vehicle))
         print(f"{args.config}: ok ({cfg.mode}, {len(names)} ports, {cfg.connection})")
         return 0
     from firmware_bridge.sd_notify import SdNotify

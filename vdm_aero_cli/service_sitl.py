@@ -25,7 +25,7 @@ import yaml
 
 from vdm_aero.geodesy import LocalFrame
 
-__all__ = ["ServiceRun", "bench_reference", "run_service_sitl", "score_service"]
+__all__ = ["ServiceRun", "ServiceTrack", "bench_reference", "run_service_sitl", "score_service"]
 
 DEPLOY_CONFIG = Path(__file__).resolve().parent.parent / "deploy" / "config.yaml"
 MAVPROXY = Path(sys.executable).parent / "mavproxy.py"
@@ -168,42 +168,57 @@ def run_service_sitl(run: ServiceRun, work: Path, *, mag_field_ned_ut: tuple[flo
             "serve_log": (work / "serve.log").read_text(errors="replace")}  # fmt: skip
 
 
+@dataclass(frozen=True)
+class ServiceTrack:
+    """The service's navigation log and the GPS_INPUT the mock received, against the world's truth (home NED)."""
+
+    boot_s: np.ndarray  # log rows' autopilot time [s]
+    error_m: np.ndarray  # horizontal error of the log rows [m]
+    sigma_h_m: np.ndarray  # the service's 1σ [m]
+    gps_input_s: np.ndarray  # GPS_INPUT time_usec [s]
+    gps_input_error_m: np.ndarray
+    gps_input_fix_types: list[int]
+    gps_input_h_acc_m: np.ndarray
+
+    @classmethod
+    def read(cls, work: Path) -> ServiceTrack:
+        z = np.load(work / "truth.npz", allow_pickle=False)
+        home = LocalFrame(float(z["home_lat_deg"]), float(z["home_lon_deg"]), float(z["home_alt_m"]))
+
+        def error(t: np.ndarray, lat: np.ndarray, lon: np.ndarray, alt: np.ndarray) -> np.ndarray:
+            ne = np.asarray(home.to_ned(lat, lon, alt)).reshape(-1, 3)[:, :2]
+            truth = np.column_stack([np.interp(t, z["t_s"], z["pos_ned_m"][:, i]) for i in range(2)])
+            return np.asarray(np.linalg.norm(ne - truth, axis=1))
+
+        lines = (work / "state" / "nav.csv").read_text().splitlines()
+        rows = np.array([[float(v) for v in r.split(",")[:15]] for r in lines if not r.startswith("#")])
+        tg = z["gps_input_time_usec"] * 1e-6 if "gps_input_time_usec" in z.files else np.zeros(0)
+        eg = error(tg, z["gps_input_lat_deg"], z["gps_input_lon_deg"], z["gps_input_alt_m"]) if len(tg) else tg
+        return cls(rows[:, 1], error(rows[:, 1], rows[:, 2], rows[:, 3], rows[:, 4]), rows[:, 14], tg, eg,
+                   sorted({int(v) for v in z["gps_input_fix_type"]}) if len(tg) else [],
+                   z["gps_input_h_acc_m"] if len(tg) else tg)  # fmt: skip
+
+
 def score_service(result: dict[str, Any]) -> dict[str, Any]:
     """The service's horizontal error against the truth: from its navigation log at the outage end, and from
     the GPS_INPUT messages the mock received during the outage."""
-    work: Path = result["work"]
     a, b = result["outage"]
-    z = np.load(work / "truth.npz", allow_pickle=False)
-    home = LocalFrame(float(z["home_lat_deg"]), float(z["home_lon_deg"]), float(z["home_alt_m"]))
-    t, pos = z["t_s"], z["pos_ned_m"]
-
-    def truth_ne(tq: np.ndarray) -> np.ndarray:
-        return np.column_stack([np.interp(tq, t, pos[:, i]) for i in range(2)])
-
-    rows = [r.split(",") for r in (work / "state" / "nav.csv").read_text().splitlines() if not r.startswith("#")]
-    boot = np.array([float(r[1]) for r in rows])
-    ned = np.asarray(home.to_ned(np.array([float(r[2]) for r in rows]), np.array([float(r[3]) for r in rows]),
-                                 np.array([float(r[4]) for r in rows]))).reshape(-1, 3)  # fmt: skip
-    err = np.linalg.norm(ned[:, :2] - truth_ne(boot), axis=1)
+    tr = ServiceTrack.read(result["work"])
+    boot, err = tr.boot_s, tr.error_m
     inside = (boot >= a) & (boot < b)
     i_end = int(np.flatnonzero(boot < b)[-1]) if (boot < b).any() else -1
     out: dict[str, Any] = {
         "final_error_m": float(err[i_end]) if i_end >= 0 and boot[i_end] > b - 0.5 else math.nan,
         "max_error_m": float(err[inside].max()) if inside.any() else math.nan,
-        "log_rows": len(rows),
+        "log_rows": len(boot),
         # 2 s after the outage: the first fixes must have pulled the position back (no overshoot, no rejection)
         "error_after_reacquisition_m": float(np.interp(b + 2.0, boot, err)) if boot[-1] > b + 2.0 else math.nan,
+        "gps_input_count": len(tr.gps_input_s),
     }
-    if "gps_input_time_usec" in z.files and len(z["gps_input_time_usec"]):
-        tg = z["gps_input_time_usec"] * 1e-6
-        g = np.asarray(home.to_ned(z["gps_input_lat_deg"], z["gps_input_lon_deg"], z["gps_input_alt_m"])).reshape(-1, 3)
-        eg = np.linalg.norm(g[:, :2] - truth_ne(tg), axis=1)
-        fix_types = sorted({int(v) for v in z["gps_input_fix_type"]})
-        out.update(gps_input_count=len(tg), gps_input_first_s=float(tg[0]), gps_input_last_s=float(tg[-1]),
-                   gps_input_final_error_m=float(eg[-1]), gps_input_fix_types=fix_types,
-                   gps_input_h_acc_end_m=float(z["gps_input_h_acc_m"][-1]))  # fmt: skip
-    else:
-        out["gps_input_count"] = 0
+    if len(tr.gps_input_s):
+        out.update(gps_input_first_s=float(tr.gps_input_s[0]), gps_input_last_s=float(tr.gps_input_s[-1]),
+                   gps_input_final_error_m=float(tr.gps_input_error_m[-1]), gps_input_fix_types=tr.gps_input_fix_types,
+                   gps_input_h_acc_end_m=float(tr.gps_input_h_acc_m[-1]))  # fmt: skip
     return out
 
 
@@ -261,25 +276,15 @@ def write_service_report(run: ServiceRun, res: dict[str, Any], score: dict[str, 
     ]
     md_path = out / "service.md"
     md_path.write_text("\n".join(md) + "\n")
-    z = np.load(res["work"] / "truth.npz", allow_pickle=False)
-    home = LocalFrame(float(z["home_lat_deg"]), float(z["home_lon_deg"]), float(z["home_alt_m"]))
-    rows = [r.split(",") for r in (res["work"] / "state" / "nav.csv").read_text().splitlines() if r[0] != "#"]
-    boot = np.array([float(r[1]) for r in rows])
-    ned = np.asarray(home.to_ned(np.array([float(r[2]) for r in rows]), np.array([float(r[3]) for r in rows]),
-                                 np.array([float(r[4]) for r in rows]))).reshape(-1, 3)  # fmt: skip
-    truth = np.column_stack([np.interp(boot, z["t_s"], z["pos_ned_m"][:, i]) for i in range(2)])
-    err = np.linalg.norm(ned[:, :2] - truth, axis=1)
-    sig = np.array([float(r[14]) for r in rows])
+    tr = ServiceTrack.read(res["work"])
+    boot, err, sig = tr.boot_s, tr.error_m, tr.sigma_h_m
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(9, 4.5))
     ax.plot(boot, err, color="tab:blue", label="service: horizontal error [m]")
     ax.plot(boot, 2.0 * sig, color="tab:blue", ls=":", label="service: 2σ [m]")
-    if score["gps_input_count"]:
-        tg = z["gps_input_time_usec"] * 1e-6
-        g = np.asarray(home.to_ned(z["gps_input_lat_deg"], z["gps_input_lon_deg"], z["gps_input_alt_m"])).reshape(-1, 3)
-        tr = np.column_stack([np.interp(tg, z["t_s"], z["pos_ned_m"][:, i]) for i in range(2)])
-        eg = np.linalg.norm(g[:, :2] - tr, axis=1)
-        ax.plot(tg, eg, ".", color="tab:red", ms=3, label="GPS_INPUT received by the autopilot")
+    if len(tr.gps_input_s):
+        ax.plot(tr.gps_input_s, tr.gps_input_error_m, ".", color="tab:red", ms=3,
+                label="GPS_INPUT received by the autopilot")  # fmt: skip
     ax.axvspan(a, b, color="tab:red", alpha=0.1, label="GNSS outage")
     ax.plot([b], [ref["final_error_m"]], "k*", ms=12, label="in-process benchmark at the outage end")
     ax.set(xlabel="autopilot time [s]", ylabel="m", title=f"service vs mock: {run.scenario} seed {run.seed}",

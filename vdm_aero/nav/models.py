@@ -7,6 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from vdm_aero.errors import ModelError
 from vdm_aero.model import AeroModel
 from vdm_aero.nav.design_fit import DesignFlightData, PortPressureModel, StabilityDerivatives
 from vdm_aero.vehicle import VehicleDescription, load_vehicle
@@ -34,8 +35,6 @@ class NavModels:
         if nn_dir is not None:
             nn = AeroModel.load(nn_dir)
             if nn.port_names != deim.port_names:
-                from vdm_aero.errors import ModelError
-
                 raise ModelError(f"{nn_dir}: ports {nn.port_names} differ from {deim_dir}'s {deim.port_names}")
             models["deim-nn"] = nn
         data = DesignFlightData.load(design_data, deim.port_names)
