@@ -21,10 +21,10 @@ import numpy as np
 from firmware_bridge.units import ImuSample
 from vdm_aero._typing import F64Array
 from vdm_aero.nav.contracts import ImuIncrement
+from vdm_aero.nav.stream import IMU_GAP_S  # a longer gap is a link loss: restart the increment, do not integrate it
 
 __all__ = ["AutopilotClock", "ImuIntegrator", "PortAssembler", "PortFrameIn"]
 
-IMU_GAP_S = 0.1  # a longer gap between IMU samples is a link loss: restart the increment, do not integrate it
 REBOOT_BACKSTEP_S = 1.0  # the autopilot's boot time stepping back this far is a reboot
 
 

@@ -4,6 +4,7 @@ side of calibration and navigation), built once per session."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -11,14 +12,42 @@ import pytest
 @pytest.fixture(scope="session")
 def design_deim12(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     """``uav-envelope`` simulated and DEIM fitted on 12 ports (training cases): {"data", "model"}."""
-    from vdm_aero.dataset import load_dataset
-    from vdm_aero.pipeline import fit_model
-    from vdm_aero_cli.cmd_data import simulate_to
-    from vdm_aero_cli.paper import case_roles
+    from vdm_aero_cli.replay_golden import build_design_models
 
-    root = tmp_path_factory.mktemp("design")
-    ds_dir = simulate_to("uav-envelope", root / "env", quiet=True)
-    ds = load_dataset(ds_dir)
-    model_dir = root / "deim12"
-    fit_model(ds, model_dir, n_sensors=12, cases=case_roles(ds)["train"])
-    return {"data": ds_dir, "model": model_dir}
+    return build_design_models(tmp_path_factory.mktemp("design"))
+
+
+PORT_FREE_AND_DEIM_MODES = ("ins", "airspeed-dr", "ports-airdata", "vdm-classic", "vdm-deim")
+"""Every mode but vdm-deim-nn: its net is trained by a calibration (minutes), the demo and the bench run it."""
+
+
+@pytest.fixture(scope="session")
+def survey_service_run(design_deim12: dict[str, Path], tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """Survey seed 1 with a 60 s outage: the service (vdm-deim) against the mock autopilot as processes, the
+    mock's tlog of it, and the in-process benchmark of the same flight for every mode but vdm-deim-nn. The
+    service's end-to-end test and the replay's equivalence test share this flight (it takes a minute)."""
+    from vdm_aero_cli.service_sitl import ServiceRun, bench_reference, run_service_sitl, site_mag_field_ut
+
+    run = ServiceRun(design_deim12["data"], design_deim12["model"], None, mode="vdm-deim", scenario="survey",
+                     seed=1, outage_s=60.0, speed=4.0)  # fmt: skip
+    mag = site_mag_field_ut(run)
+    res = run_service_sitl(run, tmp_path_factory.mktemp("survey-service") / "direct", mag_field_ned_ut=mag)
+    return {"run": run, "res": res, "mag_field_ned_ut": mag, "ref": bench_reference(run, PORT_FREE_AND_DEIM_MODES)}
+
+
+SHARED_LOGS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "logs"
+
+
+@pytest.fixture(scope="session")
+def shared_logs() -> Path:
+    """``../shared/data/logs``: the two real autopilot logs (a PX4 ULog, an ArduPlane DataFlash log) that the
+    readers are developed against. CI has shared/ beside the checkout, so a missing folder fails there and
+    only skips a developer's clone elsewhere."""
+    import os
+
+    if not (SHARED_LOGS / "px4-standard-vtol-cubeorange.ulg").is_file():
+        reason = f"{SHARED_LOGS}: the shared real logs are not beside this checkout"
+        if os.environ.get("CI"):
+            pytest.fail(reason)
+        pytest.skip(reason)
+    return SHARED_LOGS

@@ -17,7 +17,8 @@ def _full_imports(package: str) -> dict[str, set[str]]:
             if isinstance(node, ast.Import):
                 names |= {a.name for a in node.names}
             elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-                names.add(node.module)
+                names.add(node.module)  # and what may be submodules of it (``from firmware_bridge import units``)
+                names |= {f"{node.module}.{a.name}" for a in node.names}
         out[str(path.relative_to(ROOT))] = names
     return out
 
@@ -108,3 +109,28 @@ def test_service_and_replay_drive_the_same_filter_code() -> None:
     assert "vdm_aero.nav.driver" in full["firmware_bridge/service.py"]
     assert "vdm_aero.nav.driver" in full["vdm_aero/nav/stream.py"]
     assert "vdm_aero.nav.stream" in _full_imports("vdm_aero_cli")["vdm_aero_cli/nav_bench.py"]
+
+
+def test_replay_reads_logs_as_the_service_reads_the_link() -> None:
+    # the replay runs the benchmark's runner; the tlog reader converts with the service's units and assembler
+    full = {**_full_imports("firmware_bridge"), **_full_imports("vdm_aero/nav")}
+    assert "vdm_aero.nav.stream" in full["vdm_aero/nav/replay.py"]
+    assert {"firmware_bridge.units", "firmware_bridge.inputs"} <= full["firmware_bridge/logs/tlog.py"]
+    assert "vdm_aero.nav.replay" in _full_imports("vdm_aero_cli")["vdm_aero_cli/cmd_replay.py"]
+
+
+def test_log_formats_and_the_magnetic_model_behind_one_door_each() -> None:
+    users: dict[str, list[str]] = {"pyulog": [], "pygeomag": []}
+    for pkg in ("vdm_aero", "sim", "vdm_aero_cli", "firmware_bridge"):
+        for p, n in imports_of(pkg).items():
+            for lib in users:
+                if lib in n:
+                    users[lib].append(p)
+    assert users == {"pyulog": ["firmware_bridge/logs/ulog.py"], "pygeomag": ["vdm_aero/geomagnetism.py"]}, users
+    dfreader = [
+        p
+        for pkg in ("vdm_aero", "sim", "vdm_aero_cli", "firmware_bridge")
+        for p in (ROOT / pkg).rglob("*.py")
+        if "DFReader" in p.read_text() and p.name != "__init__.py"
+    ]
+    assert [str(p.relative_to(ROOT)) for p in dfreader] == ["firmware_bridge/logs/dataflash.py"], dfreader

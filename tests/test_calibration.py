@@ -17,7 +17,7 @@ import pytest
 
 from sim.flight.record import record_flight, with_model_ports
 from sim.flight.scenario import VEHICLES, load_scenario
-from sim.flight.world import Vehicle
+from sim.flight.world import FlightWorld, Vehicle
 from vdm_aero.calibrate import TargetSettings, estimate_nuisance, form_targets
 from vdm_aero.errors import UserInputError
 from vdm_aero.flightlog import FlightLogError, load_sensor_log, load_truth
@@ -73,14 +73,25 @@ def test_the_reality_gap_is_real(study: dict[str, Path]) -> None:
     assert built[3] > 3.0 * designed[3], ("Croll", built[3], designed[3])
 
 
-def test_calibration_flight_beats_design_deim(study: dict[str, Path]) -> None:
-    out = study["root"] / "calibrated"
-    r = subprocess.run(
-        [sys.executable, "-m", "vdm_aero_cli.main", "calibrate", "--flight", str(study["calib"]), "--model",
-         str(study["model"]), "--vehicle", "uav-2m", "--out", str(out), "--max-epochs", "300", "--json"],
+def _calibrate(flight: Path, model: Path, out: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "vdm_aero_cli.main", "calibrate", "--flight", str(flight), "--model", str(model),
+         "--vehicle", "uav-2m", "--out", str(out), "--max-epochs", "300", "--json"],
         capture_output=True, text=True, check=False,
     )  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def calibrated(study: dict[str, Path]) -> Path:
+    """``vdm-aero calibrate`` on the calibration flight's log directory."""
+    out = study["root"] / "calibrated"
+    r = _calibrate(study["calib"], study["model"], out)
     assert r.returncode == 0, r.stderr
+    return out
+
+
+def test_calibration_flight_beats_design_deim(study: dict[str, Path], calibrated: Path) -> None:
+    out = calibrated
     cal = AeroModel.load(out)
     assert cal.has_correction and cal.meta["calibration"]["flight"]["samples"] > 500
     assert cal.meta["calibration"]["flight"]["path"] == str(study["calib"])
@@ -128,3 +139,35 @@ def test_calibrate_needs_a_pitot_and_the_model_ports(study: dict[str, Path], tmp
         capture_output=True, text=True, check=False,
     )  # fmt: skip
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "flight.yaml" in r.stderr
+
+
+def test_calibration_from_a_mock_tlog_trains_the_same_correction(study: dict[str, Path], calibrated: Path,
+                                                                 tmp_path: Path) -> None:  # fmt: skip
+    """The same calibration flight recorded by the mock autopilot as a tlog (the streams the service asks for,
+    the ports as named values): ``calibrate --flight X.tlog`` trains a correction that is the log directory's
+    within a quarter of the correction's own size on the test flight, and as good against the truth."""
+    import math
+
+    from sim.sitl.autopilot import AutopilotOptions, run_sitl
+    from vdm_aero_cli.replay_golden import STREAMS, UNIX_TIME_AT_BOOT_S
+
+    calib = with_model_ports(load_scenario("calibration-asbuilt"), study["model"])
+    tlog = tmp_path / "calib.tlog"
+    run_sitl(FlightWorld(calib), "null", speed=math.inf, duration_s=140.0, tlog=tlog, stream_rates=STREAMS,
+             options=AutopilotOptions(gcs_recording=True, unix_time_at_boot_s=UNIX_TIME_AT_BOOT_S))  # fmt: skip
+    r = _calibrate(tlog, study["model"], tmp_path / "cal-tlog")
+    assert r.returncode == 0, r.stderr
+    from_tlog, from_dir = AeroModel.load(tmp_path / "cal-tlog"), AeroModel.load(calibrated)
+    meta = from_tlog.meta["calibration"]
+    assert meta["flight"]["path"] == str(tlog) and meta["flight"]["samples"] > 500
+    nu_t, nu_d = meta["nuisance"], from_dir.meta["calibration"]["nuisance"]
+    assert np.allclose(nu_t["thrust_factors"], nu_d["thrust_factors"], rtol=0.05), (nu_t, nu_d)
+    deim = AeroModel.load(study["model"])
+    x, y = _test_set(study["test"], deim)
+    c_t, c_d, c_0 = from_tlog.predict_batch(x), from_dir.predict_batch(x), deim.predict_batch(x, linear_only=True)
+    e_t, e_d = l2_errors(c_t, y), l2_errors(c_d, y)
+    for j, c in enumerate(("CX", "CY", "CZ", "Croll", "Cpitch", "Cyaw")):
+        size = float(np.sqrt(np.mean((c_d[:, j] - c_0[:, j]) ** 2)))
+        gap = float(np.sqrt(np.mean((c_t[:, j] - c_d[:, j]) ** 2)))
+        assert gap <= 0.25 * size, (c, gap, size)
+        assert e_t[c] <= 1.15 * e_d[c], (c, e_t[c], e_d[c])

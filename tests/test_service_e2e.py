@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -17,7 +18,6 @@ import pytest
 from vdm_aero_cli.service_sitl import (
     MAVPROXY,
     ServiceRun,
-    bench_reference,
     run_service_sitl,
     score_service,
     site_mag_field_ut,
@@ -31,9 +31,8 @@ def _run(design_deim12: dict[str, Path], **kw: object) -> ServiceRun:
     return ServiceRun(design_deim12["data"], design_deim12["model"], None, mode="vdm-deim", **kw)  # type: ignore[arg-type]
 
 
-def test_service_against_the_mock_matches_the_benchmark(design_deim12: dict[str, Path], tmp_path: Path) -> None:
-    run = _run(design_deim12, scenario="survey", seed=1, outage_s=60.0, speed=4.0)
-    res = run_service_sitl(run, tmp_path / "direct", mag_field_ned_ut=site_mag_field_ut(run))
+def test_service_against_the_mock_matches_the_benchmark(survey_service_run: dict[str, Any]) -> None:
+    res = survey_service_run["res"]
     assert res["service_rc"] == 0, res["serve_log"][-3000:]
     svc = res["service"]
     assert svc["torch_loaded"] is False  # the run-time path never imports torch
@@ -46,7 +45,7 @@ def test_service_against_the_mock_matches_the_benchmark(design_deim12: dict[str,
     assert score["gps_input_count"] >= 0.9 * 5.0 * (b - a), score
     assert a <= score["gps_input_first_s"] < a + 2.0 and score["gps_input_last_s"] < b + 1.0
     assert set(score["gps_input_fix_types"]) <= {2, 3}
-    ref = bench_reference(run)
+    ref = survey_service_run["ref"]
     assert ref["t_out"] == pytest.approx(a, abs=0.01)  # the mock prints it to 10 ms
     err, ref_err = score["final_error_m"], ref["final_error_m"]
     assert math.isfinite(err)

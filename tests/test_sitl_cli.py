@@ -104,3 +104,22 @@ def test_sitl_user_errors_are_one_line(tmp_path: Path) -> None:
                            timeout=120)  # fmt: skip
         assert r.returncode == 2, r.stderr
         assert phrase in r.stderr and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_gcs_recording_writes_a_replayable_tlog_without_a_companion(tmp_path: Path) -> None:
+    """``--gcs-recording`` on a null link: the streams asked for with --stream-rate and the named port values are in
+    the tlog from the start; without it a silent link gets no named values (ArduPilot waits for a peer)."""
+    from firmware_bridge.logs import read_log
+
+    def fly(name: str, *extra: str) -> Path:
+        tlog = tmp_path / f"{name}.tlog"
+        subprocess.run([sys.executable, "-m", "vdm_aero_cli.main", "sitl", "--scenario", "survey-wind8", "--connect",
+                        "null", "--speed", "0", "--duration-s", "3", "--stream-rate", "HIGHRES_IMU=400",
+                        "--stream-rate", "GPS_RAW_INT=5", "--tlog", str(tlog), *extra], check=True,
+                       capture_output=True)  # fmt: skip
+        return tlog
+
+    rec = read_log(fly("rec", "--gcs-recording"), ("P00", "P01"))
+    assert rec.log.meta["rates_hz"]["imu"] > 390.0 and len(rec.log["ports_t_s"]) > 50
+    silent = read_log(fly("silent"), ("P00", "P01"))
+    assert len(silent.log["ports_t_s"]) == 0 and any("no port values" in w for w in silent.report.warnings)

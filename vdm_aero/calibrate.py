@@ -332,7 +332,8 @@ def calibrate_model(
         "flight": {
             "path": str(log.path),
             "name": str(log.meta.get("name", "")),
-            "sensors_sha256": sha256_file(log.path / "sensors.npz"),
+            # a flight-log directory's sensors, or the autopilot log file itself (tlog, DataFlash, ULog)
+            "sensors_sha256": sha256_file(log.path / "sensors.npz" if log.path.is_dir() else log.path),
             "duration_s": log.duration_s,
             "window_s": log.meta.get("window_s"),
             "samples": len(data),

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -31,7 +32,9 @@ def register(sub: Any) -> None:
         "outputs with the nominal vehicle description, estimate the thrust, torque and accelerometer-bias "
         "nuisances jointly, train the correction net on (ports → target − DEIM) and write model M2.",
     )
-    c.add_argument("--flight", type=Path, required=True, metavar="LOG", help="flight-log directory")
+    c.add_argument("--flight", type=Path, required=True, metavar="LOG",
+                   help="the calibration flight: a flight-log directory, or an autopilot log with the ports "
+                   "(.tlog; DataFlash .bin and ULog .ulg carry no ports)")  # fmt: skip
     c.add_argument("--model", type=Path, required=True, metavar="M", help="the DEIM model (design data)")
     c.add_argument("--vehicle", required=True, metavar="V", help="nominal vehicle description (file or name)")
     c.add_argument("--out", type=Path, required=True, metavar="M2", help="calibrated model directory to write")
@@ -85,12 +88,29 @@ def parse_window(text: str) -> tuple[float, float]:
     return a, b
 
 
+def read_flight(path: Path, model_dir: Path) -> Any:
+    """A flight-log directory as it is, or an autopilot log read into the same SI stream (the ports in the
+    model's order); the log's warnings go to stderr."""
+    from vdm_aero.flightlog import load_sensor_log
+
+    if path.is_dir():
+        return load_sensor_log(path)
+    from firmware_bridge.logs import read_log
+    from vdm_aero.model import AeroModel
+
+    read = read_log(path, AeroModel.load(model_dir).port_names)
+    for w in read.report.warnings:
+        print(f"vdm-aero calibrate: warning: {w}", file=sys.stderr)
+    if not len(read.log["ports_t_s"]):
+        raise UserInputError(f"{path}: no port values in the log: the correction net learns from the ports")
+    return read.log
+
+
 def run_calibrate(args: argparse.Namespace) -> int:
     from vdm_aero.calibrate import TargetSettings, calibrate_model
-    from vdm_aero.flightlog import load_sensor_log
     from vdm_aero.vehicle import load_vehicle
 
-    log = load_sensor_log(args.flight)
+    log = read_flight(args.flight, args.model)
     if args.window:
         log = log.window(*parse_window(args.window))
     vehicle = load_vehicle(args.vehicle)

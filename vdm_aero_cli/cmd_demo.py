@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 from pathlib import Path
 from typing import Any
 
@@ -141,4 +142,15 @@ def run_demo(args: argparse.Namespace) -> int:
     print(svc_paths["markdown"].read_text())
     print(f"service log {res['work'] / 'serve.log'}, navigation log {res['work'] / 'state' / 'nav.csv'}, "
           f"plot {svc_paths['plot']}")  # fmt: skip
+    # 11. the log replay: the tlog the mock autopilot wrote during step 10 (the service's streams and the ports),
+    #     every mode through the same outage, judged against the mock's truth file
+    from vdm_aero.nav.filter import MODES as ALL_MODES
+    from vdm_aero_cli.cmd_replay import replay
+
+    a, b = res["outage"]
+    replay(res["tlog"], model=art.nn_dir, design_data=art.dataset_dir, vehicle="uav-2m", outages=[(a, b)],
+           modes=tuple(ALL_MODES), truth=res["work"] / "truth.npz", mag_field_ned_ut=np.asarray(site_mag_field_ut(run)),
+           out=out / "replay", jobs=os.cpu_count() or 1)  # fmt: skip
+    print("\nthe same flight replayed from the mock autopilot's tlog (`vdm-aero replay`):")
+    print((out / "replay" / "replay.md").read_text())
     return 0

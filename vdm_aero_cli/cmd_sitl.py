@@ -40,6 +40,12 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--stream-rate", action="append", default=[], metavar="MSG=HZ", help="override a stream rate, repeatable"
     )
+    p.add_argument(
+        "--gcs-recording",
+        action="store_true",
+        help="a ground station records the tlog from the start (named values flow without a companion; "
+        "set the streams with --stream-rate), e.g. with --connect null to write a flight log for replay",
+    )
     p.add_argument("--json", action="store_true", help="print the run summary as JSON")
     p.set_defaults(func=run_sitl_cmd)
 
@@ -88,7 +94,7 @@ def run_sitl_cmd(args: argparse.Namespace) -> int:
     if not (args.speed >= 0.0 and math.isfinite(args.speed)):
         raise UserInputError("--speed: must be a finite number ≥ 0 (0 = as fast as possible)")
     from sim.flight.world import FlightWorld
-    from sim.sitl.autopilot import run_sitl
+    from sim.sitl.autopilot import AutopilotOptions, run_sitl
 
     scenario = load_scenario(args.scenario) if args.scenario else _nav_scenario(args)
     duration = args.duration_s if args.duration_s is not None else scenario.duration_s
@@ -112,6 +118,7 @@ def run_sitl_cmd(args: argparse.Namespace) -> int:
             signing_key=key,
             require_signing=args.require_signing,
             ports_as_debug_array=args.ports_debug_array,
+            options=AutopilotOptions(gcs_recording=args.gcs_recording),
             on_ready=lambda where: print(f"mock autopilot on {where}, scenario {scenario.name}", flush=True),
         )
     except FlightEnvelopeError as e:  # the simulated aircraft crashed or lost control: an outcome, not a bug

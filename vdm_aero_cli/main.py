@@ -17,6 +17,7 @@ from vdm_aero_cli import (
     cmd_data,
     cmd_demo,
     cmd_model,
+    cmd_replay,
     cmd_serve,
     cmd_sitl,
     discover,
@@ -37,6 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
     cmd_sitl.register(sub)
     cmd_serve.register(sub)
     cmd_calibrate.register(sub)
+    cmd_replay.register(sub)
     cmd_bench.register(sub)
     cmd_demo.register(sub)
     return parser

@@ -34,7 +34,7 @@ from vdm_aero.flightlog import SensorLog
 from vdm_aero.geodesy import LocalFrame
 from vdm_aero.nav.filter import MODES, NavConfig, NavFilter
 from vdm_aero.nav.models import NavModels
-from vdm_aero.nav.stream import LogRunner, NavStream
+from vdm_aero.nav.stream import LogRunner, NavStream, SolutionRecorder
 from vdm_aero.rotation import euler_from_quat, quat_log, quat_multiply
 
 __all__ = ["SCENARIOS", "BenchSpec", "NavArtifacts", "format_report", "run_nav_drift"]
@@ -204,24 +204,14 @@ def run_filters(
     filters = {m: NavFilter(m, cfg, nav.derivatives) for m in modes}
     runner = LogRunner(stream, filters, fe)
     rec: dict[str, list[tuple[Any, ...]]] = {m: [] for m in modes}
-    div = round(cfg.filter_rate_hz / RECORD_HZ)
-    counter = [0]
+    record = SolutionRecorder(round(cfg.filter_rate_hz / RECORD_HZ))
 
-    def recorder(r: LogRunner, store: dict[str, list[tuple[Any, ...]]]) -> Callable[[float], None]:
-        def on_step(t: float) -> None:
-            counter[0] += 1
-            if counter[0] % div:
-                return
-            for m, f in r.filters.items():
-                if f.initialised and f.x is not None:
-                    x = f.x
-                    store[m].append((t, x.p_ned.copy(), x.v_ned.copy(), x.q_nb.copy(), x.air_motion_ned.copy(),
-                                     f.P[0:9, 0:9].copy(), f.in_outage, x.wind_ned.copy()))  # fmt: skip
-
-        return on_step
+    def recorder(r: LogRunner, store: dict[str, list[tuple[Any, ...]]], rec_: SolutionRecorder
+                 ) -> Callable[[float], None]:  # fmt: skip
+        return lambda t: rec_(t, r.filters, store)
 
     cpu0 = time.process_time()
-    runner.run_until(t_out, recorder(runner, rec))
+    runner.run_until(t_out, recorder(runner, rec, record))
     pre_cpu = time.process_time() - cpu0
     pre_flight = runner.t_s
     results: dict[str, Any] = {"outages": {}, "filter_cpu_s_per_flight_s": {}}
@@ -230,7 +220,8 @@ def run_filters(
         branch.block_gnss(t_out, t_out + length)
         store = {m: list(v) for m, v in rec.items()}
         c0 = time.process_time()
-        branch.run_until(t_out + length + AFTER_S, recorder(branch, store))
+        # each branch records at the epochs one straight run would (its own copy of the step count)
+        branch.run_until(t_out + length + AFTER_S, recorder(branch, store, copy.copy(record)))
         cpu = pre_cpu + time.process_time() - c0
         flown = pre_flight + (branch.t_s - t_out)
         results["filter_cpu_s_per_flight_s"][f"{length:g}"] = cpu / max(flown, 1e-9) / max(len(modes), 1)

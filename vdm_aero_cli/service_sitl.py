@@ -136,7 +136,7 @@ def run_service_sitl(run: ServiceRun, work: Path, *, mag_field_ned_ut: tuple[flo
         time.sleep(1.0)  # the service binds its port and loads its models (~1 s) before the autopilot talks
         cmd = [*VDM_AERO, "sitl", "--nav-scenario", run.scenario, "--seed", str(run.seed), "--outage-s",
                f"{run.outage_s:g}", "--ports-model", str(run.deim), "--connect", ap_url, "--speed", f"{run.speed:g}",
-               "--truth", str(work / "truth.npz"), "--json"]  # fmt: skip
+               "--truth", str(work / "truth.npz"), "--tlog", str(work / "mock.tlog"), "--json"]  # fmt: skip
         if run.ports_source == "debug_float_array":
             cmd.append("--ports-debug-array")
         if run.stop_after_s is not None:
@@ -162,7 +162,8 @@ def run_service_sitl(run: ServiceRun, work: Path, *, mag_field_ned_ut: tuple[flo
         for p in procs:
             _terminate(p)
     summary = json.loads((work / "summary.json").read_text()) if (work / "summary.json").exists() else {}
-    return {"config": config, "work": work, "outage": (a, b), "after_s": AFTER_S, "service_rc": rc,
+    return {"config": config, "work": work, "tlog": work / "mock.tlog", "outage": (a, b), "after_s": AFTER_S,
+            "service_rc": rc,
             "service": summary, "mock": mock_summary, "wall_s": wall, "service_cpu_pct": 100.0 * cpu / wall,
             "service_peak_rss_mb": rss,
             "serve_log": (work / "serve.log").read_text(errors="replace")}  # fmt: skip
@@ -231,8 +232,9 @@ def site_mag_field_ut(run: ServiceRun) -> tuple[float, float, float]:
     return x, y, zz
 
 
-def bench_reference(run: ServiceRun) -> dict[str, Any]:
-    """The in-process benchmark's metrics for the same scenario, seed, outage and mode (the same models)."""
+def bench_reference(run: ServiceRun, modes: tuple[str, ...] | None = None) -> dict[str, Any]:
+    """The in-process benchmark's metrics for the same scenario, seed, outage and mode (the same models); with
+    ``modes``, also ``per_mode``: each mode's metrics on the same flight."""
     from vdm_aero.nav.models import NavModels
     from vdm_aero_cli.nav_bench import AFTER_S, OUTAGE_START_S, NavArtifacts, _flight, run_filters
 
@@ -240,9 +242,13 @@ def bench_reference(run: ServiceRun) -> dict[str, Any]:
     duration = OUTAGE_START_S[1] + run.outage_s + AFTER_S + 5.0
     sensors, truth, meta, t_out = _flight(run.scenario, run.seed, art, duration)
     models = NavModels.load(run.design_data, run.deim, run.deim_nn)
-    res = run_filters(sensors, truth, meta, t_out, [run.outage_s], [run.mode], models)
-    m = res["outages"][f"{run.outage_s:g}"][run.mode]
-    return {"final_error_m": m["final_error_m"], "max_error_m": m["max_error_m"], "t_out": t_out}
+    all_modes = tuple(dict.fromkeys((run.mode, *(modes or ()))))
+    res = run_filters(sensors, truth, meta, t_out, [run.outage_s], all_modes, models)
+    per = res["outages"][f"{run.outage_s:g}"]
+    m = per[run.mode]
+    return {"final_error_m": m["final_error_m"], "max_error_m": m["max_error_m"], "t_out": t_out,
+            "per_mode": {k: {"final_error_m": v["final_error_m"], "max_error_m": v["max_error_m"]}
+                         for k, v in per.items()}}  # fmt: skip
 
 
 def write_service_report(run: ServiceRun, res: dict[str, Any], score: dict[str, Any], ref: dict[str, Any],

@@ -76,6 +76,9 @@ class AutopilotOptions:
     unix_time_at_boot_s: float | None = None  # SYSTEM_TIME/tlog epoch; None: the wall clock when run() starts
     drift: DeadReckoningDrift = field(default_factory=DeadReckoningDrift)
     truth_every_n_steps: int = 1  # decimation of the truth record
+    # a ground station recording the tlog is on the link from the start (as MAVProxy logging a flight):
+    # named values flow without waiting to hear from a companion, at the rates of ``stream_rates``
+    gcs_recording: bool = False
 
 
 class RunSummary(TypedDict):
@@ -175,7 +178,7 @@ class MockAutopilot:
         self._odometry: list[OdometryRecord] = []
         self._sent: Counter[str] = Counter()
         self._received: Counter[str] = Counter()
-        self._active = False
+        self._active = self._options.gcs_recording
         self._ran = False
         self._closed = False
         self._tlog: TlogWriter | None = None

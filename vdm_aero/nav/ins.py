@@ -68,6 +68,10 @@ class ProcessNoise:
     gust_tau_s: tuple[float, float, float] = (14.0, 14.0, 6.0)
 
 
+_EYE = np.eye(N_ERR)
+_EYE.flags.writeable = False
+
+
 class InsProcess:
     """Strapdown mechanisation (:class:`~vdm_aero.nav.contracts.ProcessModel`)."""
 
@@ -88,6 +92,14 @@ class InsProcess:
         self._qc = q
         self.set_gust_sigma(np.asarray(n.gust_sigma_m_s, dtype=np.float64))
         self._g = np.array([0.0, 0.0, G0_M_S2])
+        # the error dynamics' blocks that do not depend on the state (the transition copies them each step)
+        f = np.zeros((N_ERR, N_ERR))
+        f[0:3, 3:6] = np.eye(3)
+        f[6:9, 9:12] = -np.eye(3)
+        g, gu = IDX["gnss"], IDX["gust"]
+        f[g, g] = -np.eye(3) / self.noise_densities.gnss_tau_s
+        f[gu, gu] = -np.diag(self._gust_rate)
+        self._f_const = f
 
     def set_gust_sigma(self, sigma_m_s: F64Array) -> None:
         """The gust's steady-state standard deviation (N, E, D) [m/s]: q = 2σ²/τ keeps the Gauss–Markov
@@ -120,18 +132,12 @@ class InsProcess:
         f_b = u.dvel_b / dt - x.b_accel_b
         w_b = u.dtheta_b / dt - x.b_gyro_b
         c = dcm_from_quat(quat_multiply(x.q_nb, quat_exp(0.5 * w_b * dt)))
-        f = np.zeros((N_ERR, N_ERR))
-        f[0:3, 3:6] = np.eye(3)
+        f = self._f_const.copy()  # the state-independent blocks, then the three that depend on the state
         f[3:6, 6:9] = -c @ skew(f_b)
         f[3:6, 12:15] = -c
         f[6:9, 6:9] = -skew(w_b)
-        f[6:9, 9:12] = -np.eye(3)
-        g = IDX["gnss"]
-        f[g, g] = -np.eye(3) / self.noise_densities.gnss_tau_s
-        gu = IDX["gust"]
-        f[gu, gu] = -np.diag(self._gust_rate)
         fdt = f * dt
-        return np.eye(N_ERR) + fdt + 0.5 * fdt @ fdt
+        return _EYE + fdt + 0.5 * fdt @ fdt
 
     def noise(self, x: NavState, u: ImuIncrement) -> F64Array:
         """Q_d = G·Q_c·Gᵀ·Δt (the velocity noise rotated to NED; its covariance is isotropic)."""

@@ -39,3 +39,12 @@ class NavModels:
             models["deim-nn"] = nn
         data = DesignFlightData.load(design_data, deim.port_names)
         return cls(load_vehicle(vehicle), StabilityDerivatives.fit(data), PortPressureModel.fit(data), models)
+
+    @classmethod
+    def from_model(cls, design_data: Path, model_dir: Path, vehicle: str | Path = "uav-2m") -> NavModels:
+        """One model directory: DEIM alone, or DEIM with its correction net (then both modes, "deim" being the
+        same model without the net)."""
+        m = AeroModel.load(model_dir)
+        models = {"deim": m.with_correction(None)} | ({"deim-nn": m} if m.has_correction else {})
+        data = DesignFlightData.load(design_data, m.port_names)
+        return cls(load_vehicle(vehicle), StabilityDerivatives.fit(data), PortPressureModel.fit(data), models)

@@ -19,6 +19,7 @@ is a body-frame rotation vector: q = q̂ ⊗ exp(δθ), the ⊕ of :mod:`vdm_aer
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Final
 
@@ -110,7 +111,7 @@ class NavState:
         self.p_ned += dx[IDX["p"]]
         self.v_ned += dx[IDX["v"]]
         q = quat_multiply(self.q_nb, quat_exp(dx[IDX["theta"]]))
-        self.q_nb = q / np.linalg.norm(q)
+        self.q_nb = q / math.sqrt(float(q @ q))
         self.b_gyro_b += dx[IDX["bg"]]
         self.b_accel_b += dx[IDX["ba"]]
         self.wind_ned += dx[IDX["wind"]]

@@ -26,10 +26,12 @@ from vdm_aero.nav.filter import NavFilter
 from vdm_aero.nav.ports_frontend import PortFrontEnd
 from vdm_aero.vehicle import VehicleDescription
 
-__all__ = ["LogRunner", "NavStream"]
+__all__ = ["LogRunner", "NavStream", "SolutionRecorder"]
 
 _IMU, _GNSS, _BARO, _MAG, _PITOT, _SERVO, _PORTS = range(7)
 T_TESLA_TO_UT = 1e6
+IMU_GAP_S = 0.1  # a longer pause between IMU samples is a gap (the service's ImuIntegrator uses the same)
+IMU_GAP_FACTOR = 5.0  # ... or five typical intervals, for decimated logs
 
 
 @dataclass(frozen=True, eq=False)
@@ -72,14 +74,21 @@ class NavStream:
         t = log["imu_t_s"]
         if len(t) < 2:
             raise ValueError(f"{log.path}: fewer than two IMU samples")
+        # each sample holds until the next (rectangle rule, as the service's ImuIntegrator); a gap (link or
+        # logging loss) is not integrated across
         dt_imu = float(np.median(np.diff(t)))
+        dt = np.append(np.diff(t), dt_imu)
+        dt[(dt > max(IMU_GAP_S, IMU_GAP_FACTOR * dt_imu)) | (dt <= 0.0)] = 0.0
         k = max(round(1.0 / (filter_rate_hz * dt_imu)), 1)
         n = (len(t) // k) * k
         groups = n // k
-        dth = (log["imu_gyro_b_rad_s"][:n] * dt_imu).reshape(groups, k, 3).sum(axis=1)
-        dv = (log["imu_accel_b_m_s2"][:n] * dt_imu).reshape(groups, k, 3).sum(axis=1)
-        t_end = t[k - 1 : n : k] + dt_imu
+        dth = (log["imu_gyro_b_rad_s"][:n] * dt[:n, None]).reshape(groups, k, 3).sum(axis=1)
+        dv = (log["imu_accel_b_m_s2"][:n] * dt[:n, None]).reshape(groups, k, 3).sum(axis=1)
+        dt_step = dt[:n].reshape(groups, k).sum(axis=1)
+        t_end = t[k - 1 : n : k] + dt[k - 1 : n : k]
         temp = log["imu_temperature_c"][k - 1 : n : k]
+        ok = dt_step > 0.0  # a step made only of gaps carries nothing
+        dth, dv, dt_step, t_end, temp = dth[ok], dv[ok], dt_step[ok], t_end[ok], temp[ok]
         gt = log["gnss_t_s"]
         p_ned = (
             frame.to_ned(log["gnss_lat_deg"], log["gnss_lon_deg"], log["gnss_alt_m"]) if len(gt) else np.zeros((0, 3))
@@ -90,7 +99,7 @@ class NavStream:
             imu_t_s=t_end,
             dtheta_b=dth,
             dvel_b=dv,
-            imu_dt_s=np.full(groups, k * dt_imu),
+            imu_dt_s=dt_step,
             imu_temperature_c=temp,
             gnss_t_valid_s=gt,
             gnss_t_s=gt + gnss_latency_s,
@@ -182,6 +191,26 @@ class LogRunner:
                 d.servo(t, s.controls_rad[i], float(s.throttle[i]))
             elif kind == _PORTS:
                 d.ports(t, s.ports_dp_pa[i])
+
+
+class SolutionRecorder:
+    """Every initialised filter's solution every ``every`` filter steps, per mode:
+    (t [s], p_ned [m], v_ned [m/s], q_nb, air_motion_ned [m/s], P[0:9, 0:9], in_outage, wind_ned [m/s]).
+    The benchmark and the replay record with it, so that both read errors at the same epochs."""
+
+    def __init__(self, every: int) -> None:
+        self.every = max(every, 1)
+        self.steps = 0
+
+    def __call__(self, t_s: float, filters: dict[str, NavFilter], store: dict[str, list[tuple[Any, ...]]]) -> None:
+        self.steps += 1
+        if self.steps % self.every:
+            return
+        for m, f in filters.items():
+            if f.initialised and f.x is not None:
+                x = f.x
+                store[m].append((t_s, x.p_ned.copy(), x.v_ned.copy(), x.q_nb.copy(), x.air_motion_ned.copy(),
+                                 f.P[0:9, 0:9].copy(), f.in_outage, x.wind_ned.copy()))  # fmt: skip
 
 
 def modes_needing(modes: Sequence[str]) -> set[str]:

@@ -1,0 +1,224 @@
+"""Replaying a flight log through the navigation filters with GNSS removed inside outage windows, and scoring
+each mode's horizontal error against a reference: a truth when the log has one, else the log's own GNSS.
+
+The filters run on the :class:`~vdm_aero.nav.stream.NavStream` of the log through a
+:class:`~vdm_aero.nav.stream.LogRunner`, the path the drift benchmark and the service share. The solution
+is recorded at :data:`RECORD_HZ` (the benchmark's rate), so errors at an outage's end are read at the same
+epochs in both.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from vdm_aero._typing import F64Array
+from vdm_aero.flightlog import SensorLog
+from vdm_aero.geodesy import LocalFrame
+from vdm_aero.nav.filter import MODES, NavConfig, NavFilter
+from vdm_aero.nav.models import NavModels
+from vdm_aero.nav.ports_frontend import PortFrontEnd
+from vdm_aero.nav.stream import LogRunner, NavStream, SolutionRecorder
+from vdm_aero.rotation import euler_from_quat
+from vdm_aero.vehicle import VehicleDescription
+
+__all__ = ["RECORD_HZ", "Reference", "ReplayRun", "available_modes", "merge_runs", "replay_log", "score"]
+
+RECORD_HZ = 5.0
+MAX_FILTER_RATE_HZ = 50.0
+PORT_RANGE_PA = 500.0  # the port transducers' full scale and noise: deploy/config.yaml's defaults (SDP31)
+PORT_NOISE_PA = 0.2
+_PORT_MODES = frozenset(m for m, s in MODES.items() if s.ports_airdata or s.force in ("deim", "deim-nn"))
+
+
+@dataclass(frozen=True, eq=False)
+class Reference:
+    """Where the error is measured against: positions in the replay's local frame (NED from the first fix)."""
+
+    source: str  # "truth: ..." or "the log's GNSS"
+    t_s: F64Array
+    p_ned_m: F64Array  # (N, 3); D NaN when the reference has no altitude (SIMSTATE)
+
+
+@dataclass
+class ReplayRun:
+    """What a replay produced: the recorded solution per mode and what was run."""
+
+    modes: tuple[str, ...]
+    outages: tuple[tuple[float, float], ...]
+    origin: tuple[float, float, float]  # lat [deg], lon [deg], alt [m] of the local frame
+    filter_rate_hz: float
+    rows: dict[str, list[tuple[Any, ...]]]  # per mode: the records of :class:`SolutionRecorder`
+    skipped_modes: dict[str, str] = field(default_factory=dict)  # mode → why it did not run
+    port_counts: dict[str, int] | None = None
+    rejected: dict[str, dict[str, int]] = field(default_factory=dict)
+
+    def history(self, mode: str) -> dict[str, F64Array]:
+        r = self.rows[mode]
+        return {
+            "t_s": np.array([x[0] for x in r]),
+            "p_ned_m": np.array([x[1] for x in r]).reshape(-1, 3),
+            "v_ned_m_s": np.array([x[2] for x in r]).reshape(-1, 3),
+            "q_nb": np.array([x[3] for x in r]).reshape(-1, 4),
+            "sigma_h_m": np.array([sigma_h_m(x[5]) for x in r]),
+            "in_outage": np.array([x[6] for x in r], dtype=bool),
+            "wind_ned_m_s": np.array([x[7] for x in r]).reshape(-1, 3),
+        }
+
+
+def sigma_h_m(cov: F64Array) -> float:
+    """1σ horizontal position uncertainty of a recorded covariance: √(largest eigenvalue of its NE block) [m]
+    (as :meth:`NavFilter.horizontal_sigma_m`)."""
+    return float(math.sqrt(max(np.linalg.eigvalsh(cov[0:2, 0:2])[-1], 0.0)))
+
+
+def available_modes(requested: Sequence[str], log: SensorLog, models: NavModels | None
+                    ) -> tuple[tuple[str, ...], dict[str, str]]:  # fmt: skip
+    """The requested modes the log and the models allow, and why the others cannot run."""
+    run, skipped = [], {}
+    has_ports = len(log["ports_t_s"]) > 0 and np.isfinite(log["ports_dp_pa"]).any()
+    for m in requested:
+        spec = MODES[m]
+        if m in _PORT_MODES and not has_ports:
+            skipped[m] = "the log has no port values"
+        elif (m in _PORT_MODES or spec.force == "classic") and models is None:
+            skipped[m] = "no aero model and design data set given (--model, --design-data)"
+        elif spec.force == "deim-nn" and models is not None and "deim-nn" not in models.models:
+            skipped[m] = "the model has no correction net"
+        else:
+            run.append(m)
+    return tuple(run), skipped
+
+
+def replay_log(
+    log: SensorLog,
+    vehicle: VehicleDescription,
+    models: NavModels | None,
+    *,
+    modes: Sequence[str],
+    outages: Sequence[tuple[float, float]],
+    mag_field_ned_ut: F64Array,
+    progress: Callable[[float], None] | None = None,
+) -> ReplayRun:
+    """Run ``modes`` through ``log`` with GNSS removed in ``outages`` ([start, end) on the log's clock [s])."""
+    if not len(log["gnss_t_s"]):
+        raise ValueError(f"{log.path}: no 3-D GNSS fix in the log (the filter starts at the first fix)")
+    origin = (float(log["gnss_lat_deg"][0]), float(log["gnss_lon_deg"][0]), float(log["gnss_alt_m"][0]))
+    frame = LocalFrame(*origin)
+    imu_hz = 1.0 / float(np.median(np.diff(log["imu_t_s"])))
+    rate = min(MAX_FILTER_RATE_HZ, imu_hz)
+    cfg = NavConfig(vehicle=vehicle, origin_alt_m=origin[2], mag_field_ned_ut=np.asarray(mag_field_ned_ut, float),
+                    filter_rate_hz=rate, aiding_rate_hz=min(10.0, rate))  # fmt: skip
+    stream = NavStream.from_log(log, vehicle, frame, filter_rate_hz=rate, gnss_latency_s=cfg.gnss_latency_s)
+    fe = None
+    if models is not None and any(m in _PORT_MODES for m in modes):
+        fe = PortFrontEnd(models.pressure_model, dict(models.models), range_pa=PORT_RANGE_PA, noise_pa=PORT_NOISE_PA)
+    derivatives = models.derivatives if models is not None else None
+    filters = {m: NavFilter(m, cfg, derivatives) for m in modes}
+    runner = LogRunner(stream, filters, fe)
+    for a, b in outages:
+        runner.block_gnss(a, b)
+    rows: dict[str, list[tuple[Any, ...]]] = {m: [] for m in modes}
+    record = SolutionRecorder(round(rate / RECORD_HZ))
+    t0, t1 = float(stream.event_t_s[0]), float(stream.event_t_s[-1])
+    next_progress = [t0]
+
+    def on_step(t: float) -> None:
+        record(t, runner.filters, rows)
+        if progress is not None and t >= next_progress[0]:
+            progress((t - t0) / max(t1 - t0, 1e-9))
+            next_progress[0] = t + 0.01 * (t1 - t0)
+
+    runner.run_until(math.inf, on_step)
+    return ReplayRun(
+        modes=tuple(modes), outages=tuple(outages), origin=origin, filter_rate_hz=rate, rows=rows,
+        port_counts=dict(fe.counts) if fe is not None else None,
+        rejected={m: dict(f.rejected) for m, f in runner.filters.items()},
+    )  # fmt: skip
+
+
+def merge_runs(runs: Sequence[ReplayRun], modes: Sequence[str]) -> ReplayRun:
+    """Runs of the same log and outages with disjoint modes (one per process) as one run, modes in ``modes``
+    order."""
+    first = runs[0]
+    rows = {m: r.rows[m] for r in runs for m in r.modes}
+    return ReplayRun(
+        modes=tuple(m for m in modes if m in rows), outages=first.outages, origin=first.origin,
+        filter_rate_hz=first.filter_rate_hz, rows=rows,
+        port_counts=next((r.port_counts for r in runs if r.port_counts is not None), None),
+        rejected={m: v for r in runs for m, v in r.rejected.items()},
+    )  # fmt: skip
+
+
+def score(run: ReplayRun, ref: Reference) -> dict[str, Any]:
+    """Per outage and mode: the horizontal error at the outage's end (the last record before it), the largest
+    in it, the distance flown (by the reference), σ_h at the end and whether 2σ covers the error; and per mode
+    the error history inside the outages (for the plot)."""
+    out: dict[str, Any] = {"reference": ref.source, "outages": [], "curves": {}}
+    rt = ref.t_s
+    for a, b in run.outages:
+        inside_ref = (rt >= a) & (rt < b)
+        ne = ref.p_ned_m[inside_ref, :2]
+        dist = float(np.sum(np.linalg.norm(np.diff(ne, axis=0), axis=1))) if len(ne) > 1 else math.nan
+        per: dict[str, Any] = {}
+        for m in run.modes:
+            h = run.history(m)
+            t = h["t_s"]
+            if not len(t) or t[0] >= b:
+                per[m] = None
+                continue
+            e = _error_h(h, ref)
+            i_end = int(np.searchsorted(t, b)) - 1
+            inside = (t >= a) & (t < b) & np.isfinite(e)
+            fin = float(e[i_end]) if i_end >= 0 and t[i_end] >= a and math.isfinite(e[i_end]) else math.nan
+            sig = float(h["sigma_h_m"][i_end]) if i_end >= 0 else math.nan
+            per[m] = {
+                "final_error_m": fin,
+                "max_error_m": float(e[inside].max()) if inside.any() else math.nan,
+                "distance_m": dist,
+                "final_error_pct": 100.0 * fin / dist if dist > 0 else math.nan,
+                "sigma_h_end_m": sig,
+                "covered_2sigma": bool(fin <= 2.0 * sig) if math.isfinite(fin) else None,
+            }
+        out["outages"].append({"start_s": a, "end_s": b, "modes": per})
+    for m in run.modes:
+        h = run.history(m)
+        e = _error_h(h, ref)
+        out["curves"][m] = {"t_s": h["t_s"], "error_m": e, "sigma_h_m": h["sigma_h_m"]}
+    return out
+
+
+def _error_h(h: dict[str, F64Array], ref: Reference) -> F64Array:
+    """Horizontal error of the recorded solution against the reference, interpolated to the solution's
+    epochs (NaN where the reference has no sample within a second: its gaps are not bridged)."""
+    t = h["t_s"]
+    if not len(t) or len(ref.t_s) < 2:
+        return np.full(len(t), math.nan)
+    pn = np.interp(t, ref.t_s, ref.p_ned_m[:, 0])
+    pe = np.interp(t, ref.t_s, ref.p_ned_m[:, 1])
+    e = np.hypot(h["p_ned_m"][:, 0] - pn, h["p_ned_m"][:, 1] - pe)
+    k = np.clip(np.searchsorted(ref.t_s, t), 1, len(ref.t_s) - 1)
+    near = np.minimum(np.abs(ref.t_s[k] - t), np.abs(ref.t_s[k - 1] - t))
+    gap = (ref.t_s[k] - ref.t_s[k - 1]) > 1.0
+    e[(near > 1.0) | ((t < ref.t_s[0]) | (t > ref.t_s[-1])) | (gap & (near > 0.5))] = math.nan
+    return np.asarray(e)
+
+
+def solution_table(run: ReplayRun, frame: LocalFrame) -> tuple[list[str], list[list[Any]]]:
+    """The navigation solution as CSV rows: per mode and record, time, geodetic and NED position, velocity,
+    attitude (roll, pitch, yaw [deg]), σ_h, wind and the GNSS state."""
+    header = ["mode", "t_s", "lat_deg", "lon_deg", "alt_m", "n_m", "e_m", "d_m", "vn_m_s", "ve_m_s", "vd_m_s",
+              "roll_deg", "pitch_deg", "yaw_deg", "sigma_h_m", "wind_n_m_s", "wind_e_m_s", "gnss"]  # fmt: skip
+    out = []
+    for m in run.modes:
+        for t, p, v, q, _, cov, outage, w in run.rows[m]:
+            sig = sigma_h_m(cov)
+            lat, lon, alt = frame.to_geodetic(float(p[0]), float(p[1]), float(p[2]))
+            r, pi, y = (math.degrees(a) for a in euler_from_quat(q))
+            out.append([m, t, lat, lon, alt, *map(float, p), *map(float, v), r, pi, y, sig, float(w[0]), float(w[1]),
+                        "outage" if outage else "aided"])  # fmt: skip
+    return header, out
