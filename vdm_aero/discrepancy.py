@@ -49,7 +49,7 @@ MIN_ABSOLUTE_GAIN = 0.1  # ... and cut it by ≥ 10 % of the noise floor J_floor
 MIN_INCLUSION = 0.5  # ... and win in ≥ 50 % of the bootstrap resamples
 PARSIMONY_TOL = 0.01  # gains within 1 % (of the remaining explainable J) are a tie: fewer parameters win
 MIN_EXPLAINED_SHARE = 0.5  # named effects must explain ≥ 50 % of the explainable J, else "unexplained"
-MAX_EFFECTS = 3
+MAX_EFFECTS = 8  # every library effect could be named: the rules, not a count, end the rounds
 BOOTSTRAP_SAMPLES = 200
 BOOTSTRAP_BLOCK = 16  # samples per bootstrap block (keeps the within-cycle correlation)
 PORT_BIAS_MIN_CP = 0.01  # a per-port offset below this is treated as zero
@@ -72,11 +72,23 @@ class Candidate:
     """A named effect with its fitted parameters' start value and bounds: {param: (x0, low, high)}.
 
     ``kind="port_bias"``: the parameters are per-port Cp offsets, estimated in closed form.
+    ``kind="pair"``: a prerequisite and an effect that requires it, fitted together (``name`` is
+    ``"prerequisite+dependent"``, parameters ``"effect.param"``), so that the dependent can win a round its
+    prerequisite alone would not.
     """
 
     name: str
     params: Mapping[str, tuple[float, float, float]]
     kind: str = "continuous"
+
+    @property
+    def effect_names(self) -> tuple[str, ...]:
+        return tuple(self.name.split("+")) if self.kind == "pair" else (self.name,)
+
+
+CandidateSource = Sequence[Candidate] | Callable[[Mapping[str, Mapping[str, Any]]], Sequence[Candidate]]
+"""A fixed candidate list, or a function of the effects named so far (candidates rebuilt every round)."""
+BOUND_TOLERANCE = 0.01  # a fitted parameter within 1 % of its range from a bound is reported as at the bound
 
 
 @dataclass(frozen=True)
@@ -109,6 +121,7 @@ class Fit:
     gain: float = 0.0
     n_params: int = 0
     sample_energy: dict[int, F64Array] = field(default_factory=dict)  # held-out per-sample energy
+    at_bounds: dict[str, str] = field(default_factory=dict)  # param → "low" / "high" (within BOUND_TOLERANCE)
 
 
 def _lcm(coeffs: F64Array, alpha: F64Array) -> F64Array:
@@ -129,7 +142,7 @@ class Discovery:
         train: Sequence[int],
         heldout: Sequence[int],
         base_effects: Effects,
-        candidates: Sequence[Candidate],
+        candidates: CandidateSource,
         seed: int = 0,
         progress: Callable[[str], None] | None = None,
     ) -> None:
@@ -140,7 +153,7 @@ class Discovery:
         self.ports = tuple(ports)
         self.train, self.heldout = list(train), list(heldout)
         self.base_effects = {k: dict(v) for k, v in base_effects.items()}
-        self.candidates = list(candidates)
+        self.candidates = candidates if callable(candidates) else list(candidates)
         self.rng = np.random.default_rng(seed)
         self.progress = progress or (lambda _msg: None)
         self.meas_lcm = {cid: _lcm(c.coeffs, c.alpha) for cid, c in self.cases.items()}
@@ -261,9 +274,20 @@ class Discovery:
 
     # --------------------------------------------------------------------------------------- fitting
     def _with(self, effects: Effects, name: str, params: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
+        """``effects`` with ``name``'s parameters set; for a pair ("a+b") the ``"a.p"`` parameters go to a."""
         out = {k: dict(v) for k, v in effects.items()}
-        out[name] = {**out.get(name, {}), **params}
+        if "+" not in name:
+            out[name] = {**out.get(name, {}), **params}
+            return out
+        for part in name.split("+"):
+            own = {k.split(".", 1)[1]: v for k, v in params.items() if k.split(".", 1)[0] == part}
+            out[part] = {**out.get(part, {}), **own}
         return out
+
+    def candidates_for(self, current: Effects, named: Sequence[str]) -> list[Candidate]:
+        """This round's candidates: rebuilt from the effects named so far, without those already named."""
+        cands = self.candidates(current) if callable(self.candidates) else self.candidates
+        return [c for c in cands if not set(c.effect_names) & set(named)]
 
     def fit_candidate(self, cand: Candidate, current: Effects) -> Fit:
         """Fit the candidate's parameters on the training cases, on top of ``current``."""
@@ -289,7 +313,12 @@ class Discovery:
         sol = min(sols, key=lambda r: float(np.sum(r.fun**2)))
         params = {n: float(v) for n, v in zip(names, sol.x, strict=True)}
         eff = self._with(current, cand.name, params)
-        return self._score(cand.name, params, eff, train_j=float(np.sum(sol.fun**2)))
+        fit = self._score(cand.name, params, eff, train_j=float(np.sum(sol.fun**2)))
+        tol = BOUND_TOLERANCE * (hi - lo)
+        for n, v, a, b, t in zip(names, sol.x, lo, hi, tol, strict=True):
+            if v <= a + t or v >= b - t:  # the effect's shape or its range may not fit the data
+                fit.at_bounds[n] = "low" if v <= a + t else "high"
+        return fit
 
     def _fit_port_bias(self, cand: Candidate, current: Effects) -> Fit:
         res = self.residuals(current, self.train)
@@ -339,6 +368,25 @@ class Discovery:
                 wins[best] += 1
         return {f.name: float(w / BOOTSTRAP_SAMPLES) for f, w in zip(fits, wins, strict=True)}
 
+    @staticmethod
+    def _named(f: Fit, inclusion: float) -> list[dict[str, Any]]:
+        """The report's entries of a round's winner: one per effect (a pair names two, ``named_with`` each other)."""
+        parts = f.name.split("+")
+
+        def own(k: str) -> str:  # a pair's parameters are "effect.param"
+            return k.split(".", 1)[1] if len(parts) > 1 else k
+
+        out = []
+        for part in parts:
+            mine = [k for k in f.params if len(parts) == 1 or k.split(".", 1)[0] == part]
+            e: dict[str, Any] = {"name": part, "params": {own(k): f.params[k] for k in mine},
+                                 "inclusion_probability": inclusion, "heldout_gain": f.gain,
+                                 "at_bounds": {own(k): f.at_bounds[k] for k in mine if k in f.at_bounds}}  # fmt: skip
+            if len(parts) > 1:
+                e["named_with"] = [p for p in parts if p != part]
+            out.append(e)
+        return out
+
     def run(self) -> dict[str, Any]:
         current = {k: dict(v) for k, v in self.base_effects.items()}
         self.calibrate_scales()
@@ -350,8 +398,9 @@ class Discovery:
         rounds: list[dict[str, Any]] = []
         chosen: list[Fit] = []
         inclusion: dict[str, float] = {}
-        remaining = list(self.candidates)
+        named: list[str] = []
         for rnd in range(MAX_EFFECTS):
+            remaining = self.candidates_for(current, named)
             remaining_j = ref_j - floor
             if rnd > 0 and remaining_j < MIN_REMAINING * floor:
                 break  # what is left is noise
@@ -376,6 +425,7 @@ class Discovery:
                             "heldout_gain": f.gain,
                             "params": f.params,
                             "inclusion_probability": incl[f.name],
+                            "at_bounds": dict(f.at_bounds),
                         }
                         for f in fits
                     ],
@@ -389,22 +439,12 @@ class Discovery:
             inclusion[best.name] = incl[best.name]
             current = best.effects
             ref_e, ref_j = best.sample_energy, best.heldout_j
-            remaining = [c for c in remaining if c.name != best.name]
+            named += best.name.split("+")
         explained = (base_j - ref_j) / explainable
         unexplained = not chosen or explained < MIN_EXPLAINED_SHARE
         final = self.base_effects if unexplained else current
         return {
-            "effects": []
-            if unexplained
-            else [
-                {
-                    "name": f.name,
-                    "params": f.params,
-                    "inclusion_probability": inclusion[f.name],
-                    "heldout_gain": f.gain,
-                }
-                for f in chosen
-            ],
+            "effects": [] if unexplained else [e for f in chosen for e in self._named(f, inclusion[f.name])],
             "explained_share": explained,
             "unexplained": unexplained,
             "rounds": rounds,

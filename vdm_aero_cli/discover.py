@@ -58,7 +58,7 @@ def split_cases(ds: Dataset) -> tuple[list[int], list[int]]:
 
 def discover(spec_source: str, measured_path: Path, out: Path, *, seed: int = 0) -> dict[str, Any]:
     """Run the whole workflow and write REPORT_DIR; returns report.json's content."""
-    from sim.airfoil.replay import AirfoilReplay, candidate_library
+    from sim.airfoil.replay import AirfoilReplay, candidate_source
     from vdm_aero_cli.cmd_data import load_any_spec
 
     t0 = time.perf_counter()
@@ -73,13 +73,14 @@ def discover(spec_source: str, measured_path: Path, out: Path, *, seed: int = 0)
         train=train,
         heldout=held,
         base_effects=replay.base_effects,
-        candidates=candidate_library(replay),
+        candidates=candidate_source(replay),
         seed=seed,
     )
     result = disc.run()
     base, final = replay.base_effects, result["final_effects"]
     gap_before, gap_after = disc.gap(base, held), disc.gap(final, held)
     hot = disc.hotspots(base, [c.id for c in measured.cases])
+    hot_after = disc.hotspots(final, [c.id for c in measured.cases])
     out.mkdir(parents=True, exist_ok=True)
     new_spec = spec.to_dict()
     new_spec["effects"] = {k: dict(v) for k, v in final.items()}
@@ -93,6 +94,7 @@ def discover(spec_source: str, measured_path: Path, out: Path, *, seed: int = 0)
         "gap_after": _gap(gap_after),
         "unexplained": result["unexplained"],
         "hotspots": hot,
+        "hotspots_after": hot_after,
         "explained_share": result["explained_share"],
         "noise_floor_objective": result["noise_floor_objective"],
         "baseline_heldout_objective": result["baseline_heldout_objective"],
@@ -136,10 +138,19 @@ def report_markdown(r: dict[str, Any]) -> str:
             "| effect | parameters | held-out gain | inclusion probability |",
             "|---|---|---|---|",
         ]
+        bounded = []
         for e in r["effects"]:
-            params = ", ".join(f"{k} = {v:.4g}" for k, v in e["params"].items())
-            lines.append(f"| `{e['name']}` | {params} | {e['heldout_gain']:.1%} | {e['inclusion_probability']:.2f} |")
+            params = ", ".join(f"{k} = {v:.4g}" + (f" (at its {e['at_bounds'][k]} bound)" if k in e.get("at_bounds", {})
+                                                   else "") for k, v in e["params"].items())  # fmt: skip
+            together = f" (named with {', '.join(e['named_with'])})" if e.get("named_with") else ""
+            lines.append(f"| `{e['name']}`{together} | {params} | {e['heldout_gain']:.1%} "
+                         f"| {e['inclusion_probability']:.2f} |")  # fmt: skip
+            bounded += [f"`{e['name']}`.{k}" for k in e.get("at_bounds", {})]
         lines += ["", f"Together they explain {r['explained_share']:.1%} of the explainable held-out residual.", ""]
+        if bounded:
+            lines += [f"**At a bound** (within 1 % of the documented range): {', '.join(bounded)}. The effect's "
+                      "shape or its range may not fit the data: read its parameters as a direction, not a value.",
+                      ""]  # fmt: skip
     b, a = r["gap_before"], r["gap_after"]
     lines += [
         f"## Gap on the held-out cases {r['heldout_cases']} (trained on {r['train_cases']})",
@@ -153,7 +164,7 @@ def report_markdown(r: dict[str, Any]) -> str:
     lines.append(f"| RMS port Cp | {b['cp_rms']:.4g} | {a['cp_rms']:.4g} | {_shrink(b['cp_rms'], a['cp_rms'])} |")
     lines += [
         "",
-        "## Where the disagreement lives (before)",
+        "## Where the disagreement lives (before; after in `report.json` → `hotspots_after`)",
         "",
         "| kind | where | share | concentration |",
         "|---|---|---|---|",

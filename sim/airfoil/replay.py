@@ -75,6 +75,7 @@ class AirfoilReplay:
         self.ports, self.surface = self._match_ports(measured)
         self.motions = {c.id: self._motion(measured, c.id) for c in measured.cases}
         self.truth = measured.truth_coeffs()
+        self.separation_start: dict[str, Any] | None = None  # NeuralFoil-calibrated static separation (cached)
 
     # ------------------------------------------------------------------------------------- set-up
     def _match_ports(self, ds: Dataset) -> tuple[tuple[PortInfo, ...], EvalSurface]:
@@ -168,27 +169,57 @@ class AirfoilReplay:
         return out
 
 
-def candidate_library(replay: AirfoilReplay, *, extra: Sequence[Candidate] = ()) -> list[Candidate]:
-    """Every named effect as a candidate: start values from the spec (or defaults, or the NeuralFoil
-    calibration for static separation), bounds = the documented physical range. Effects whose
-    required effect is absent from the spec are not candidates on their own."""
-    base = replay.base_effects
-    out: list[Candidate] = []
+def candidate_source(replay: AirfoilReplay, *, extra: Sequence[Candidate] = ()
+                     ) -> Callable[[Mapping[str, Mapping[str, Any]]], list[Candidate]]:  # fmt: skip
+    """The candidates as a function of the effects named so far (what :class:`Discovery` rebuilds each round)."""
+    return lambda current: candidate_library(replay, extra=extra, current=current)
+
+
+def candidate_library(replay: AirfoilReplay, *, extra: Sequence[Candidate] = (),
+                      current: Mapping[str, Mapping[str, Any]] | None = None) -> list[Candidate]:  # fmt: skip
+    """The candidates given the effects in the simulation so far (``current``, default the spec's): every effect
+    whose required effects are in it, with start values from it (or defaults, or the NeuralFoil calibration for
+    static separation) and bounds = the documented physical range; and for every effect whose one missing
+    requirement is itself a candidate, the pair "requirement+effect", fitted together."""
+    base = replay.base_effects if current is None else current
+    singles: dict[str, Candidate] = {}
     for name, info in EFFECTS.items():
         if any(req not in base for req in info.requires):
             continue
         if name == "port_bias":
-            out.append(Candidate(name, {}, kind="port_bias"))
+            singles[name] = Candidate(name, {}, kind="port_bias")
             continue
-        start = dict(base.get(name, {}))
-        if name == "trailing_edge_separation" and name not in base:
-            probe = replay.flow.with_effects({name: effect_defaults(name)})
+        singles[name] = Candidate(name, _bounded(name, _start(replay, name, base)))
+    pairs = []
+    for name, info in EFFECTS.items():
+        missing = [req for req in info.requires if req not in base]
+        if len(missing) != 1 or missing[0] not in singles or singles[missing[0]].kind != "continuous":
+            continue
+        pre = singles[missing[0]]
+        own = _bounded(name, _start(replay, name, base))
+        params = {f"{pre.name}.{k}": v for k, v in pre.params.items()} | {f"{name}.{k}": v for k, v in own.items()}
+        pairs.append(Candidate(f"{pre.name}+{name}", params, kind="pair"))
+    return [*singles.values(), *pairs, *extra]
+
+
+def _start(replay: AirfoilReplay, name: str, current: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
+    """Start values: the current simulation's, else static separation calibrated on NeuralFoil (once per
+    replay), else the effect's defaults."""
+    if name in current:
+        return dict(current[name])
+    if name == "trailing_edge_separation":
+        if replay.separation_start is None:
             from sim.airfoil.separation import calibrate_static_separation
 
-            start = calibrate_static_separation(probe, replay.spec.airfoil, replay.spec.reynolds)
-        params = {}
-        for p, pi in info.params.items():
-            x0 = float(start.get(p, pi.default))
-            params[p] = (x0, min(pi.low, x0), max(pi.high, x0))
-        out.append(Candidate(name, params))
-    return [*out, *extra]
+            probe = replay.flow.with_effects({name: effect_defaults(name)})
+            replay.separation_start = calibrate_static_separation(probe, replay.spec.airfoil, replay.spec.reynolds)
+        return dict(replay.separation_start)
+    return {}
+
+
+def _bounded(name: str, start: Mapping[str, Any]) -> dict[str, tuple[float, float, float]]:
+    params = {}
+    for p, pi in EFFECTS[name].params.items():
+        x0 = float(start.get(p, pi.default))
+        params[p] = (x0, min(pi.low, x0), max(pi.high, x0))
+    return params
