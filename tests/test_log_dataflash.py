@@ -223,6 +223,9 @@ FORMATS = {  # name: (type, format, columns), ArduPilot 4.x layouts trimmed to t
     "SIM2": (0x89, "Qdddffff", "TimeUS,PN,PE,PD,VN,VE,VD,As"),
     "MSG": (0x8A, "QZ", "TimeUS,Message"),
     "ATT": (0x8B, "Qcc", "TimeUS,Roll,Pitch"),
+    # the Lua script's port chunks (logger:write adds TimeUS): 12 ports, then the rest
+    "VPP0": (0x8C, "Q" + "f" * 12, "TimeUS," + ",".join(f"P{i:02d}" for i in range(12))),
+    "VPP1": (0x8D, "Qff", "TimeUS,P12,P13"),
 }
 _STRUCTS = {n: DFReader.DFFormat(t, n, 0, f, c).msg_struct for n, (t, f, c) in FORMATS.items()}
 T0_US = 10_000_000
@@ -301,7 +304,7 @@ def test_synthetic_log_fields_units_instances_and_truth(tmp_path: Path) -> None:
     np.testing.assert_allclose(r.truth.v_ned_m_s[inner, 0], 5.0 * (r.truth.t_s[inner] - T0_US * 1e-6 - 0.007),
                                atol=1e-5)  # fmt: skip
     # no ports in a DataFlash log: the port array has its width and no rows
-    assert log["ports_dp_pa"].shape == (0, 3) and any("no pressure ports" in w for w in rep.warnings)
+    assert log["ports_dp_pa"].shape == (0, 3) and any("no port values in the log" in w for w in rep.warnings)
     assert not any("SERVO" in w or "airspeed" in w for w in rep.warnings)
     assert rep.unknown["ATT"] == 50 and rep.truncated_at_byte is None and rep.malformed == 0
     assert 10 <= len(calls) <= 101 and calls == sorted(calls) and calls[-1] == 1.0
@@ -321,3 +324,29 @@ def test_servo_channels_default_with_a_warning(tmp_path: Path, params: dict[int,
         assert servo_warnings == []
     else:
         assert len(servo_warnings) == 1 and warned in servo_warnings[0]
+
+
+def test_the_lua_scripts_port_chunks_become_frames(tmp_path: Path) -> None:
+    """VPP0 (ports 0..11) and VPP1 (12, 13) written back to back by one update join one frame, in the order of
+    the names asked for; a NaN stays a lost port; a lone chunk is a frame with the other ports NaN."""
+    names = tuple(f"P{i:02d}" for i in (13, *range(13)))  # the model's order need not be the log's
+    out = [_rec("FMT", t, 3 + struct.calcsize(_STRUCTS[n]), n.encode(), f.encode(), c.encode())
+           for n, (t, f, c) in FORMATS.items()]  # fmt: skip
+    for k in range(20):
+        t = T0_US + 20_000 * k
+        vals = [100.0 * i + k for i in range(14)]
+        if k == 3:
+            vals[5] = math.nan
+        out.append(_rec("VPP0", t, *vals[:12]))
+        if k != 7:  # one update's second chunk lost
+            out.append(_rec("VPP1", t + 40, *vals[12:]))
+    (tmp_path / "p.bin").write_bytes(b"".join(out))
+    r = read_dataflash(tmp_path / "p.bin", names)
+    dp, t = r.log["ports_dp_pa"], r.log["ports_t_s"]
+    assert dp.shape == (20, 14) and r.report.used["VPP0"] == 20 and r.report.used["VPP1"] == 19
+    np.testing.assert_allclose(t, (T0_US + 20_000 * np.arange(20)) * 1e-6)
+    np.testing.assert_allclose(dp[0], [1300.0, *(100.0 * i for i in range(13))])
+    assert math.isnan(dp[3, 6]) and np.isfinite(np.delete(dp[3], 6)).all()  # P05 is column 6 here
+    # P13 and P12 (columns 0 and 13) of the update whose VPP1 was lost
+    assert np.isnan(dp[7, [0, 13]]).all() and np.isfinite(dp[7, 1:13]).all()
+    assert not any("no port values" in w for w in r.report.warnings)

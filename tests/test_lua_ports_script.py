@@ -329,3 +329,24 @@ def test_runs_under_the_lua_53_that_ardupilot_embeds(tmp_path: Path) -> None:
     for k in (1, 2, 3):
         want = {f"P{p:02d}": datasheet_pa(c, 1) for p, c in sensors.counts[k].items()}
         assert run.values(k) == pytest.approx(want, rel=1e-12)
+
+
+def test_readings_are_logged_to_dataflash_in_fixed_chunks(lua: str, tmp_path: Path) -> None:
+    """VPP_LOG = 1 (the default): each update writes VPP0 (P00..P11) and VPP1 (P12..P23, NaN beyond VPP_COUNT)
+    with the values it sent, within AP_Scripting's logger limits (checked by the stub); VPP_LOG = 0: nothing."""
+    sensors = make_sensors(21, 3, 20)
+    run = run_script(lua, tmp_path, params=WIRING | {"VPP_COUNT": 20}, updates=3, frames=sensors.frames)
+    rows = run.of("LOG")
+    assert [(int(k), name) for k, _, name, _, _ in rows] == [(k, n) for k in (1, 2, 3) for n in ("VPP0", "VPP1")]
+    for k, ms, _name, labels, vals in rows:
+        sent = run.values(int(k))
+        logged = dict(zip(labels.split(","), vals.split(","), strict=True))
+        assert {int(ms)} == run.nvf_ms(int(k))  # written with the frame's sends
+        for port, v in logged.items():
+            if port in sent:
+                assert float(v) == sent[port] or (math.isnan(float(v)) and math.isnan(sent[port]))
+            else:
+                assert int(port[1:]) >= 20 and math.isnan(float(v))
+    assert set(rows[1][3].split(",")) == set(port_names(24)) - set(port_names(12))
+    off = run_script(lua, tmp_path, params=WIRING | {"VPP_LOG": 0}, updates=2, frames=make_sensors(2, 2, 12).frames)
+    assert off.of("LOG") == [] and len(off.of("NVF")) == 24

@@ -61,7 +61,7 @@ local NAN = 0 / 0
 assert(#NAME_PREFIX + 2 <= NAME_MAX, "VPP: NAME_PREFIX too long for NAMED_VALUE_FLOAT")
 
 -- Parameters --------------------------------------------------------------------------------------------
--- 8 slots for the 7 parameters: one spare for a later addition
+-- 8 slots for the 8 parameters
 assert(param:add_table(PARAM_TABLE_KEY, PARAM_PREFIX, 8), "VPP: could not add param table (key in use?)")
 
 -- Parameter() + init() works on older firmware too (Parameter(name) came later)
@@ -123,6 +123,14 @@ local VPP_ADDR = bind_add_param("ADDR", 6, 0x28)
 --]]
 local VPP_RANGE_PSI = bind_add_param("RANGE_PSI", 7, 1)
 
+--[[
+  // @Param: VPP_LOG
+  // @DisplayName: Log the ports
+  // @Description: 1 also writes every reading to the DataFlash log, so that a log replay or an in-flight calibration has the ports without a telemetry log: messages VPP0 (ports 0..11), VPP1 (12..23), VPP2 (24..31), each TimeUS and one float per port [Pa] named like the port (NaN for a lost port, ports beyond VPP_COUNT NaN)
+  // @Values: 0:Disabled,1:Enabled
+--]]
+local VPP_LOG = bind_add_param("LOG", 8, 1)
+
 -- State ---------------------------------------------------------------------------------------------------
 local names = {} -- port index (0-based) -> name, built once: no string garbage per update
 for i = 0, MAX_PORTS - 1 do
@@ -138,6 +146,21 @@ local due_ms = nil -- when the current update was due; keeps a start-to-start ca
 local last_text_ms = nil
 local bad_count, bad_last = 0, "" -- bad readings since the last fault text, and the latest one
 local announced = false
+
+-- DataFlash: AP_Logger takes at most 14 format characters and 56 label characters from a script (it adds
+-- TimeUS); 12 ports ("P00,...,P11", 47 characters) per message. Fixed layouts: a message's format must not
+-- change during a log, so every chunk always carries its 12 ports (NaN beyond VPP_COUNT).
+local LOG_CHUNK = 12
+local log_chunks = {} -- chunk index -> { name, labels, format, first port }
+for c = 0, (MAX_PORTS - 1) // LOG_CHUNK do
+  local first = c * LOG_CHUNK
+  local last = math.min(MAX_PORTS, first + LOG_CHUNK) - 1
+  local labels = {}
+  for i = first, last do
+    labels[#labels + 1] = names[i]
+  end
+  log_chunks[c] = { "VPP" .. c, table.concat(labels, ","), string.rep("f", last - first + 1), first, last }
+end
 
 local function now_ms()
   return millis():toint()
@@ -273,6 +296,15 @@ local function update()
   -- ... then every send back to back: one millis() for the whole frame
   for i = 0, cfg.count - 1 do
     gcs:send_named_float(names[i], values[i])
+  end
+  if VPP_LOG:get() >= 0.5 then
+    for i = cfg.count, MAX_PORTS - 1 do
+      values[i] = NAN
+    end
+    for c = 0, (cfg.count - 1) // LOG_CHUNK do
+      local ch = log_chunks[c]
+      logger:write(ch[1], ch[2], ch[3], table.unpack(values, ch[4], ch[5]))
+    end
   end
 
   if bad_count > 0 and warn(string.format("VPP: %d bad readings, last %s", bad_count, bad_last)) then

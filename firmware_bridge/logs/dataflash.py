@@ -19,13 +19,15 @@ GPS           GWk, GMS                    GPS week, ms of the week              
 RCOU          C1..C14                     µs                                      servo, by SERVOn_FUNCTION
 SIM (SITL)    Lat, Lng, Alt, Roll..Yaw    deg, deg, m AMSL, deg                   truth (q_nb from the angles)
 SIM2 (SITL)   VN, VE, VD                  m/s                                     truth velocity
+VPP0, VPP1 …  P00 … (the port names)      Pa (Δp = p_port − p_static)             ports, by name
 ============  ==========================  ======================================  ==============================
 
 Sensors are read from their first instance: the records whose ``I`` field is 0 on current firmware; older
 firmware (e.g. 3.8) logs the other instances as other message types (IMU2, MAG2, BAR2, GPS2, ASP2), which are
 skipped. Times are ``TimeUS`` × 1e-6: seconds since the autopilot's boot. Of several outputs with one servo
-function, the lowest channel is taken. DataFlash logs carry no pressure ports (the Lua script sends them as
-MAVLink NAMED_VALUE_FLOAT, which the autopilot does not log).
+function, the lowest channel is taken. The ports are in the log when the Lua script writes them (VPP_LOG = 1,
+its default): VPP0 holds P00..P11, VPP1 P12..P23, ..., each with TimeUS and one float [Pa] per port; the chunks
+of one reading join one frame. (The NAMED_VALUE_FLOAT the script sends to the companion is not logged.)
 
 DataFlash records have no checksum. A run of bytes that is not a record (a corrupted block) is skipped by
 pymavlink, which resynchronises on the next record header; the record just before such a run is dropped as
@@ -66,6 +68,8 @@ RCOU_CHANNELS = 14  # RCOU carries C1..C14 (newer firmware logs 15+ in RCO2)
 # ArduPlane order of the servo stream: (name, SERVOn_FUNCTION value, channel when the log does not say)
 SERVO_FUNCTIONS = (("aileron", 4, 1), ("elevator", 19, 2), ("throttle", 70, 3), ("rudder", 21, 4))
 PROGRESS_STEPS = 100
+PORTS_MSG_PREFIX = "VPP"  # the Lua script's port messages: VPP0, VPP1, ... (firmware_bridge/ardupilot)
+PORT_CHUNK_MERGE_S = 0.002  # the chunks of one reading are logged within microseconds of each other
 T = TypeVar("T")
 
 
@@ -89,6 +93,10 @@ class _Converter:
         self.sim2: list[tuple[float, ...]] = []  # (t, vN, vE, vD)
         self.boot_utc_s: list[float] = []
         self.firmware: str | None = None
+        self.port_index = {n: i for i, n in enumerate(port_names)}
+        self._frame_t: float | None = None  # the port frame being assembled from VPPn chunks
+        self._frame: list[float] = []
+        self.port_frames = 0
         self._handlers: dict[str, Callable[[Any, float], bool | None]] = {
             "IMU": self._imu, "BARO": self._baro, "ARSP": self._pitot, "ASPD": self._pitot, "MAG": self._mag,
             "GPS": self._gps, "RCOU": self._rcou, "SIM": self._sim, "SIM2": self._sim2,
@@ -96,6 +104,13 @@ class _Converter:
 
     def convert(self, m: Any) -> None:
         kind: str = m.get_type()
+        if kind.startswith(PORTS_MSG_PREFIX) and kind[len(PORTS_MSG_PREFIX) :].isdigit():
+            if self.port_index:
+                self._ports(m, m.TimeUS * US_TO_S)
+                self.report.count(kind)
+            else:
+                self.report.skip(f"{kind} (no port names given)")
+            return
         handler = self._handlers.get(kind)
         if handler is None:
             if kind == "MSG" and self.firmware is None and str(m.Message).startswith("Ardu"):
@@ -153,6 +168,25 @@ class _Converter:
         self.builder.gnss(t, m.Lat, m.Lng, m.Alt, v_ned)
         return True
 
+    def _ports(self, m: Any, t: float) -> None:
+        """A chunk of a port frame (VPP0: ports 0..11, VPP1: 12..23, ...; fields named like the ports). The
+        chunks of one reading are written back to back: they join one frame while within PORT_CHUNK_MERGE_S and
+        not repeating a port."""
+        cols = [(self.port_index[c], float(getattr(m, c))) for c in m.fmt.columns if c in self.port_index]
+        if self._frame_t is not None and (t - self._frame_t > PORT_CHUNK_MERGE_S
+                                          or any(not math.isnan(self._frame[i]) for i, _ in cols)):  # fmt: skip
+            self.flush_ports()
+        if self._frame_t is None:
+            self._frame_t, self._frame = t, [math.nan] * len(self.port_index)
+        for i, v in cols:
+            self._frame[i] = v if math.isfinite(v) else math.nan
+
+    def flush_ports(self) -> None:
+        if self._frame_t is not None:
+            self.builder.ports(self._frame_t, self._frame)
+            self.port_frames += 1
+            self._frame_t = None
+
     def _rcou(self, m: Any, t: float) -> bool:
         self.rcou.append((t, *(float(getattr(m, f"C{c}", 0)) for c in range(1, RCOU_CHANNELS + 1))))
         return True
@@ -170,6 +204,7 @@ class _Converter:
 
     def finish(self, params: Mapping[str, float]) -> tuple[dict[str, int], TruthTrack | None, float | None]:
         """Servo channels from the parameters, the truth track, the UTC of the boot."""
+        self.flush_ports()
         channels = _servo_channels(params, self.report, self.path.name) if self.rcou else {}
         for row in self.rcou:
             self.builder.servo(row[0], [row[c] for c in channels.values()])
@@ -208,8 +243,9 @@ def read_dataflash(path: Path, port_names: Sequence[str] = (), *, progress: Call
     if progress is not None:
         progress(1.0)
     channels, truth, boot = conv.finish(params)
-    if port_names:
-        report.warn(f"{path.name}: DataFlash logs carry no pressure ports (NAMED_VALUE_FLOAT is not logged)")
+    if port_names and conv.port_frames == 0:
+        report.warn(f"{path.name}: no port values in the log (VPPn messages: the Lua script writes them with "
+                    "VPP_LOG = 1; NAMED_VALUE_FLOAT itself is not logged)")  # fmt: skip
     meta = {"firmware": conv.firmware, "servo_channels": channels}
     log = conv.builder.build(path, report, meta=meta)
     return LogRead(log, truth, report, boot)

@@ -173,6 +173,42 @@ function M.new(scenario, emit)
   end
   env.gcs = gcs
 
+  -- logger (AP_Scripting's logger:write checks, lua_bindings.cpp: name ≤ 4, labels < 57, format < 15
+  -- characters; as many values as format characters; scripts may use i, L, e, f, n, M, B, I, E, N)
+  local logger = {}
+  local formats = {}
+  function logger:write(name, labels, fmt, ...)
+    if type(name) ~= "string" or #name > 4 then
+      error("Name must be 4 or less chars long", 2)
+    end
+    if type(labels) ~= "string" or #labels >= 57 then
+      error("labels must be less than 57 chars long", 2)
+    end
+    if type(fmt) ~= "string" or #fmt >= 15 or fmt:find("[^iLefnMBIEN]") then
+      error("bad format " .. tostring(fmt), 2)
+    end
+    local n = select("#", ...)
+    local _, commas = labels:gsub(",", "")
+    if n ~= #fmt or commas + 1 ~= #fmt then
+      error("logger:write: " .. n .. " values, " .. (commas + 1) .. " labels for format " .. fmt, 2)
+    end
+    local key = labels .. "|" .. fmt
+    if formats[name] ~= nil and formats[name] ~= key then
+      error("logger:write: " .. name .. " changed its labels or format during the log", 2)
+    end
+    formats[name] = key
+    local vals = {}
+    for i = 1, n do
+      local v = select(i, ...)
+      if type(v) ~= "number" then
+        error("logger:write: value " .. i .. " is not a number", 2)
+      end
+      vals[i] = fmt_value(v)
+    end
+    emit("LOG", S.update, now_ms(), name, labels, table.concat(vals, ","))
+  end
+  env.logger = logger
+
   -- the simulated bus -------------------------------------------------------------------------------------
   local function wiring()
     local mux = math.tointeger(p("VPP_MUX_ADDR")) or 0
