@@ -4,7 +4,9 @@ Case 1: DEIM built on experiment (tunnel) data, candidates = the 36 taps.
 Case 2: DEIM built on simulation (URANS) data with candidates nearest the taps, applied to experiment
 inputs. In both, the correction net is trained on the tunnel training cases, selected on the
 validation case, and everything is evaluated on the held-out test case, without noise and with 1.5 %
-noise on the port inputs.
+noise on the port inputs. Two baselines trained on the same cases sit next to DEIM and DEIM+NN: a linear
+regression and an MLP (same grid, seed and epoch budget as the net) straight from the same ports; the noisy
+tables give the noise floor of the DEIM linear map and the net's amplification of it.
 """
 
 from __future__ import annotations
@@ -12,13 +14,17 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from vdm_aero.dataset import Dataset, load_dataset
 from vdm_aero.errors import UserInputError
+from vdm_aero.evaluation import METHOD_LABELS
 from vdm_aero.model import AeroModel
 from vdm_aero_cli.cmd_data import simulate_to
 from vdm_aero_cli.progress import progress_bar
+
+if TYPE_CHECKING:
+    from vdm_aero.pipeline import Baselines
 
 NOISE = 0.015
 AIRFOIL_CASES = (1, 2)
@@ -59,20 +65,24 @@ def case_roles(ds: Dataset) -> dict[str, list[int]]:
 
 def train_and_evaluate(
     mdir: Path, ds: Dataset, roles: dict[str, list[int]], case: int, train: dict[str, Any]
-) -> tuple[AeroModel, list[dict[str, Any]]]:
-    """Train the correction net of a fitted model on ``ds``'s training cases (selected on its validation
-    cases) and evaluate on its test cases without and with noise: the rows of one table line."""
-    from vdm_aero.pipeline import evaluate_model, train_model
+) -> tuple[AeroModel, Baselines, list[dict[str, Any]]]:
+    """Train the correction net of a fitted model and the two baselines on ``ds``'s training cases (selected
+    on its validation cases) and evaluate all on its test cases without and with noise: the rows of one
+    table line."""
+    from vdm_aero.pipeline import evaluate_model, fit_baselines, train_model
 
     train_model(mdir, ds, train_cases=roles["train"], val_cases=roles["validation"], **train)
     model = AeroModel.load(mdir)
+    baselines = fit_baselines(model, ds, train_cases=roles["train"], val_cases=roles["validation"], **train)
+    summary = {k: v for k, v in baselines.summary.items() if k != "mlp_candidates"}
     rows = []
     for noise in (0.0, NOISE):
-        r = evaluate_model(model, ds, roles["test"], noise=noise, seed=train["seed"])
+        r = evaluate_model(model, ds, roles["test"], noise=noise, seed=train["seed"], baselines=baselines)
         r["case"] = case
         r["selected_net"] = model.meta["training"]["selected"]
+        r["baselines"] = summary
         rows.append(r)
-    return model, rows
+    return model, baselines, rows
 
 
 def run_airfoil_tables(
@@ -86,7 +96,7 @@ def run_airfoil_tables(
     quiet: bool = False,
 ) -> dict[str, Any]:
     from vdm_aero.pipeline import fit_model, predictions
-    from vdm_aero_cli.plots import plot_model_diagnostics, plot_predictions
+    from vdm_aero_cli.plots import plot_method_errors, plot_model_diagnostics, plot_predictions
 
     data = out / "data"
     urans = load_dataset(simulate_to("naca0015-urans", data / "naca0015-urans", quiet=quiet))
@@ -102,10 +112,11 @@ def run_airfoil_tables(
                 fit_model(tunnel, mdir, n_sensors=n, cases=roles["train"])
             else:
                 fit_model(urans, mdir, n_sensors=n, candidates_from=tunnel)
-            model, rows = train_and_evaluate(mdir, tunnel, roles, case, train)
+            model, baselines, rows = train_and_evaluate(mdir, tunnel, roles, case, train)
             results += rows
             if n == max(sensors):
-                plot_predictions(predictions(model, tunnel, roles["test"]), out / f"case{case}-ns{n}-predictions.png",
+                plot_predictions(predictions(model, tunnel, roles["test"], baselines),
+                                 out / f"case{case}-ns{n}-predictions.png",
                                  title=f"case {case}, n_s = {n}, test case {roles['test']}")  # fmt: skip
                 plot_model_diagnostics(mdir, out / f"case{case}-ns{n}-sensors.png", title=f"case {case}")
             update(k + 1, len(jobs))
@@ -113,6 +124,8 @@ def run_airfoil_tables(
     out.mkdir(parents=True, exist_ok=True)
     (out / "tables.json").write_text(json.dumps(doc, indent=2))
     (out / "tables.md").write_text(tables_markdown(doc))
+    for case in AIRFOIL_CASES:
+        plot_method_errors(doc, case, out / f"case{case}-errors.png", title=f"case {case}: {CASES[case]}")
     return doc
 
 
@@ -129,7 +142,7 @@ def run_uav_tables(
     """The method's 3-D case: DEIM on the simulated pitching UAV (every surface point a candidate), the
     net trained on the training frequencies, selected on the validation one, evaluated on the test one."""
     from vdm_aero.pipeline import fit_model, predictions
-    from vdm_aero_cli.plots import plot_ports_3d, plot_predictions
+    from vdm_aero_cli.plots import plot_method_errors, plot_ports_3d, plot_predictions
 
     ds = load_dataset(simulate_to("uav-pitch", out / "data" / "uav-pitch", quiet=quiet))
     roles = case_roles(ds)
@@ -139,10 +152,10 @@ def run_uav_tables(
         for k, n in enumerate(sensors):
             mdir = out / "models" / f"uav-ns{n}"
             fit_model(ds, mdir, n_sensors=n, cases=roles["train"])
-            model, rows = train_and_evaluate(mdir, ds, roles, 3, train)
+            model, baselines, rows = train_and_evaluate(mdir, ds, roles, 3, train)
             results += rows
             if n == max(sensors):
-                plot_predictions(predictions(model, ds, roles["test"]), out / f"uav-ns{n}-predictions.png",
+                plot_predictions(predictions(model, ds, roles["test"], baselines), out / f"uav-ns{n}-predictions.png",
                                  title=f"UAV pitching, n_s = {n}, test case {roles['test']}")  # fmt: skip
                 plot_ports_3d(ds, model, out / f"uav-ns{n}-ports.png")
             update(k + 1, len(sensors))
@@ -150,7 +163,14 @@ def run_uav_tables(
     out.mkdir(parents=True, exist_ok=True)
     (out / "tables.json").write_text(json.dumps(doc, indent=2))
     (out / "tables.md").write_text(tables_markdown(doc))
+    plot_method_errors(doc, 3, out / "uav-errors.png", title=f"case 3: {CASES[3]}")
     return doc
+
+
+def _cells(m: dict[str, float] | None, alpha: bool = True) -> list[str]:
+    if m is None:
+        return ["–"] * (3 if alpha else 2)
+    return [f"{m['l2']:.3e}", f"{m['linf']:.3e}"] + ([f"{m['alpha_at_linf_deg']:.2f}°"] if alpha else [])
 
 
 def tables_markdown(doc: dict[str, Any]) -> str:
@@ -161,6 +181,10 @@ def tables_markdown(doc: dict[str, Any]) -> str:
         "",
         "Errors on the held-out test case: ℓ2 = ‖ŷ−y‖₂/‖y‖₂, ℓ∞ = max|ŷ−y|/max|y|, α at the ℓ∞ error.",
         f"Correction-net grid: {doc['grid']}; seed {doc['seed']}; training input noise {doc['train_noise']:g}.",
+        "Baselines from the same ports, trained on the net's training cases: linear = least squares [1, Cp] → "
+        "coefficients; MLP = the net's grid search, seed and epoch budget with the coefficients as target.",
+        "With noise (Cp·(1 + σ·N(0,1)) per port and sample): floor = ℓ2 error the noise alone causes through the "
+        "DEIM linear map M_s; amplif. = DEIM+NN ℓ2 / sqrt(its noise-free ℓ2² + floor²) (≈ 1: no amplification).",
         "",
     ]
     for case, title in CASES.items():
@@ -168,25 +192,29 @@ def tables_markdown(doc: dict[str, Any]) -> str:
             rows = [r for r in doc["results"] if r["case"] == case and r["noise"] == noise]
             if not rows:
                 continue
+            head = ["n_s", "coeff", "DEIM ℓ2", "DEIM ℓ∞", "DEIM α@ℓ∞", "DEIM+NN ℓ2", "DEIM+NN ℓ∞", "DEIM+NN α@ℓ∞",
+                    "ℓ2 ratio", "linear ℓ2", "linear ℓ∞", "MLP ℓ2", "MLP ℓ∞", "best ℓ2"]  # fmt: skip
+            if noise > 0:
+                head += ["floor ℓ2", "DEIM+NN amplif."]
             lines += [
                 f"## Case {case}: {title}; noise {noise * 100:g} %",
                 "",
-                "| n_s | coeff | DEIM ℓ2 | DEIM ℓ∞ | DEIM α@ℓ∞ | DEIM+NN ℓ2 | DEIM+NN ℓ∞ | DEIM+NN α@ℓ∞ | ℓ2 ratio |",
-                "|---|---|---|---|---|---|---|---|---|",
+                "| " + " | ".join(head) + " |",
+                "|---" * len(head) + "|",
             ]
             for r in rows:
                 for coeff in ("CL", "CD"):
-                    d, nn = r["metrics"][coeff]["deim"], r["metrics"][coeff].get("deim_nn")
-                    nn_cells = (
-                        f"{nn['l2']:.3e} | {nn['linf']:.3e} | {nn['alpha_at_linf_deg']:.2f}° | "
-                        f"{d['l2'] / nn['l2']:.1f}×"
-                        if nn
-                        else "– | – | – | –"
-                    )
-                    lines.append(
-                        f"| {r['n_sensors']} | {coeff} | {d['l2']:.3e} | {d['linf']:.3e} | "
-                        f"{d['alpha_at_linf_deg']:.2f}° | {nn_cells} |"
-                    )
+                    ms = r["metrics"][coeff]
+                    d, nn = ms["deim"], ms.get("deim_nn")
+                    cells = [str(r["n_sensors"]), coeff, *_cells(d), *_cells(nn)]
+                    cells.append(f"{d['l2'] / nn['l2']:.1f}×" if nn else "–")
+                    cells += _cells(ms.get("linear_regression"), alpha=False) + _cells(ms.get("mlp"), alpha=False)
+                    cells.append(METHOD_LABELS[min(ms, key=lambda k: ms[k]["l2"])])
+                    if noise > 0:
+                        f = r["noise_floor"][coeff]
+                        cells.append(f"{f['floor_l2']['deim']:.3e}")
+                        cells.append(f"{f['amplification']['deim_nn']:.2f}" if nn else "–")
+                    lines.append("| " + " | ".join(cells) + " |")
             lines.append("")
     return "\n".join(lines)
 

@@ -57,26 +57,61 @@ def plot_dataset(ds: Dataset, out: Path) -> None:
     plt.close(fig)
 
 
+STYLE = {
+    "truth": ("k", "-", "truth"),
+    "deim": ("tab:blue", "--", "DEIM"),
+    "deim_nn": ("tab:red", ":", "DEIM+NN"),
+    "linear_regression": ("tab:green", "-.", "linear (ports)"),
+    "mlp": ("tab:purple", (0, (5, 1, 1, 1)), "MLP (ports)"),
+}
+
+
 def plot_predictions(pred: dict[str, np.ndarray], out: Path, *, title: str) -> None:
-    """C_L and C_D versus α and versus t: truth, DEIM and DEIM+NN."""
+    """C_L and C_D versus α and versus t: truth, DEIM, DEIM+NN and the port baselines present in ``pred``."""
     plt = _pyplot()
     alpha_deg = np.degrees(pred["alpha"])
-    series = {k: lift_drag(pred[k], pred["alpha"]) for k in ("truth", "deim", "deim_nn") if k in pred}
-    style = {
-        "truth": ("k", "-", "truth"),
-        "deim": ("tab:blue", "--", "DEIM"),
-        "deim_nn": ("tab:red", ":", "DEIM+NN"),
-    }
+    series = {k: lift_drag(pred[k], pred["alpha"]) for k in STYLE if k in pred}
     fig, axes = plt.subplots(2, 2, figsize=(13, 8))
     for j, coeff in enumerate(("C_L", "C_D")):
         for key, (cl, cd) in series.items():
-            colour, ls, label = style[key]
+            colour, ls, label = STYLE[key]
             y = cl if j == 0 else cd
             axes[j, 0].plot(alpha_deg, y, color=colour, ls=ls, lw=1.2, label=label)
             axes[j, 1].plot(pred["t"], y, color=colour, ls=ls, lw=1.2, label=label)
         axes[j, 0].set(xlabel="α [deg]", ylabel=coeff)
         axes[j, 1].set(xlabel="t [s]", ylabel=coeff)
     axes[0, 0].legend()
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+
+
+def plot_method_errors(doc: dict[str, Any], case: int, out: Path, *, title: str) -> None:
+    """Relative ℓ2 of C_L and C_D against n_s for every method of a paper-tables ``doc`` (one case), without
+    and with noise; the noisy panels add the DEIM linear map's noise floor."""
+    plt = _pyplot()
+    rows = [r for r in doc["results"] if r["case"] == case]
+    noises = sorted({r["noise"] for r in rows})
+    fig, axes = plt.subplots(2, len(noises), figsize=(6.5 * len(noises), 8), squeeze=False)
+    for j, noise in enumerate(noises):
+        sel = sorted((r for r in rows if r["noise"] == noise), key=lambda r: r["n_sensors"])
+        ns = [r["n_sensors"] for r in sel]
+        for i, coeff in enumerate(("CL", "CD")):
+            ax = axes[i, j]
+            for key in ("deim", "deim_nn", "linear_regression", "mlp"):
+                if all(key in r["metrics"][coeff] for r in sel):
+                    colour, ls, label = STYLE[key]
+                    ax.plot(ns, [r["metrics"][coeff][key]["l2"] for r in sel], "o", color=colour, ls=ls, label=label)
+            if noise > 0:
+                floor = [r["noise_floor"][coeff]["floor_l2"]["deim"] for r in sel]
+                ax.plot(ns, floor, "k_", ls="-", lw=0.8, ms=12, label="noise floor (DEIM map)")
+            ax.set_yscale("log")
+            ax.set(xlabel="n_s", ylabel=f"{coeff} relative ℓ2", title=f"{coeff}, noise {noise * 100:g} %")
+            ax.set_xticks(ns)
+            ax.grid(True, which="both", alpha=0.3)
+    for ax in axes[0]:
+        ax.legend(fontsize=8)
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(out, dpi=110)
