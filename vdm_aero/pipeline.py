@@ -147,6 +147,19 @@ def ports_and_truth(model: AeroModel, ds: Dataset, cases: Sequence[int]) -> tupl
     return np.asarray(sub.cp[:, cols], dtype=np.float64), sub.truth_coeffs(), sub
 
 
+def _training_samples(model: AeroModel, ds: Dataset, grid: str, train_cases: Sequence[int], val_cases: Sequence[int]
+                      ) -> tuple[F64Array, F64Array, F64Array, F64Array]:  # fmt: skip
+    """(port Cp, truth) of the training and validation cases, the one set the net and the baselines learn
+    from; a grid name that is not known is a one-line error."""
+    from vdm_aero.train_correction import GRIDS
+
+    if grid not in GRIDS:
+        raise UserInputError(f"--grid: unknown grid {grid!r} (known: {', '.join(GRIDS)})")
+    x_tr, y_tr, _ = ports_and_truth(model, ds, train_cases)
+    x_va, y_va, _ = ports_and_truth(model, ds, val_cases)
+    return x_tr, y_tr, x_va, y_va
+
+
 def train_model(
     model_dir: Path,
     ds: Dataset,
@@ -165,13 +178,10 @@ def train_model(
     :func:`vdm_aero.train_correction.train_one`)."""
     from vdm_aero.train_correction import GRIDS, check_onnx_matches, export_onnx, grid_search
 
-    if grid not in GRIDS:
-        raise UserInputError(f"--grid: unknown grid {grid!r} (known: {', '.join(GRIDS)})")
     if set(train_cases) & set(val_cases):
         raise UserInputError("--train-cases and --val-cases overlap: validation must be on unseen cases")
     model = AeroModel.load(model_dir).with_correction(None)
-    x_tr, y_tr, _ = ports_and_truth(model, ds, train_cases)
-    x_va, y_va, _ = ports_and_truth(model, ds, val_cases)
+    x_tr, y_tr, x_va, y_va = _training_samples(model, ds, grid, train_cases, val_cases)
     r_tr = y_tr - model.predict_batch(x_tr, linear_only=True)
     r_va = y_va - model.predict_batch(x_va, linear_only=True)
     fingerprint = samples_sha256(x_tr, y_tr, x_va, y_va)
@@ -279,10 +289,7 @@ def fit_baselines(
     from vdm_aero.onnx_net import OnnxCorrection
     from vdm_aero.train_correction import GRIDS, check_onnx_matches, export_onnx, grid_search
 
-    if grid not in GRIDS:
-        raise UserInputError(f"--grid: unknown grid {grid!r} (known: {', '.join(GRIDS)})")
-    x_tr, y_tr, _ = ports_and_truth(model, ds, train_cases)
-    x_va, y_va, _ = ports_and_truth(model, ds, val_cases)
+    x_tr, y_tr, x_va, y_va = _training_samples(model, ds, grid, train_cases, val_cases)
     w = linear_baseline(x_tr, y_tr)
     # with input noise the target of a noisy sample stays the truth: a linear part M_s = 0 in the augmentation
     zero_ms = np.zeros((y_tr.shape[1], model.n_ports)) if train_noise > 0.0 else None

@@ -160,18 +160,19 @@ def score(run: ReplayRun, ref: Reference) -> dict[str, Any]:
     the error history inside the outages (for the plot)."""
     out: dict[str, Any] = {"reference": ref.source, "outages": [], "curves": {}}
     rt = ref.t_s
+    hist = {m: run.history(m) for m in run.modes}  # each mode's history and error, once for every outage
+    err = {m: _error_h(h, ref) for m, h in hist.items()}
     for a, b in run.outages:
         inside_ref = (rt >= a) & (rt < b)
         ne = ref.p_ned_m[inside_ref, :2]
         dist = float(np.sum(np.linalg.norm(np.diff(ne, axis=0), axis=1))) if len(ne) > 1 else math.nan
         per: dict[str, Any] = {}
         for m in run.modes:
-            h = run.history(m)
+            h, e = hist[m], err[m]
             t = h["t_s"]
             if not len(t) or t[0] >= b:
                 per[m] = None
                 continue
-            e = _error_h(h, ref)
             i_end = int(np.searchsorted(t, b)) - 1
             inside = (t >= a) & (t < b) & np.isfinite(e)
             fin = float(e[i_end]) if i_end >= 0 and t[i_end] >= a and math.isfinite(e[i_end]) else math.nan
@@ -186,9 +187,7 @@ def score(run: ReplayRun, ref: Reference) -> dict[str, Any]:
             }
         out["outages"].append({"start_s": a, "end_s": b, "modes": per})
     for m in run.modes:
-        h = run.history(m)
-        e = _error_h(h, ref)
-        out["curves"][m] = {"t_s": h["t_s"], "error_m": e, "sigma_h_m": h["sigma_h_m"]}
+        out["curves"][m] = {"t_s": hist[m]["t_s"], "error_m": err[m], "sigma_h_m": hist[m]["sigma_h_m"]}
     return out
 
 
