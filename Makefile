@@ -4,6 +4,7 @@ VENV    := .venv
 BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.installed
 OUT     ?= out
+QUICK   ?=
 
 .PHONY: demo test lint typecheck bench clean
 
@@ -18,8 +19,9 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install --quiet --no-deps "MAVProxy==1.8.75"
 	touch $(STAMP)
 
+# QUICK=1: a first look in about a minute, every stage at reduced size, in $(OUT)/demo-quick
 demo: $(STAMP)
-	$(BIN)/vdm-aero demo --out $(OUT)/demo
+	$(BIN)/vdm-aero demo $(if $(QUICK),--quick --out $(OUT)/demo-quick,--out $(OUT)/demo)
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
@@ -28,8 +30,10 @@ lint: $(STAMP)
 typecheck: $(STAMP)
 	$(BIN)/mypy
 
+# two workers: the end-to-end tests wait on real-time flights while the other core computes; a module stays on
+# one worker (its fixtures are built once), session fixtures are built once for both (tests/conftest.py)
 test: lint typecheck
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n 2 --dist loadscope
 
 bench: $(STAMP)
 	mkdir -p $(OUT)/bench

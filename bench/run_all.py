@@ -14,6 +14,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from bench import reliability_bench
+
 
 def _median_seconds(fn: Callable[[], Any], repeats: int) -> tuple[float, list[float]]:
     times = []
@@ -210,6 +212,12 @@ BENCHES: dict[str, Callable[[int], dict[str, Any]]] = {
     "nav-drift": bench_nav_drift,
     "service": bench_service,
     "replay": bench_replay,
+    "reliability-faults": reliability_bench.bench_faults,
+    "reliability-link-60s": reliability_bench.bench_link_60s,
+    "reliability-gnss-drift": reliability_bench.bench_gnss_drift,
+    "reliability-long-outage": reliability_bench.bench_long_outage,
+    "reliability-load": reliability_bench.bench_load,
+    "reliability-soak": reliability_bench.bench_soak,
 }
 
 

@@ -3,12 +3,15 @@
 Read once at start into frozen dataclasses. Any fault, an unknown or misspelt key, a wrong type, a value out
 of range, a path that does not exist, is one :class:`ConfigError` line naming the file, the dotted key and its
 line, and the CLI exits with 2 (systemd's ``RestartPreventExitStatus=2``: a bad config is not restarted).
-Relative paths are relative to the config file's directory.
+Relative paths are relative to the config file's directory. Whatever the file holds (binary bytes, a
+number of 5000 digits, a YAML tag, a duplicate key, brackets nested 10,000 deep), the answer is the config or
+that one line, never another exception.
 """
 
 from __future__ import annotations
 
 import math
+import reprlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -26,6 +29,8 @@ SOLUTION_OUTPUTS = {"ardupilot": ("gps_input", "none"), "px4": ("global_position
 PORT_SOURCES = ("named_value_float", "debug_float_array")
 DYNAMIC_PRESSURE = ("ports", "pitot")
 NAME_MAX = 10  # NAMED_VALUE_FLOAT name length
+_SHOW = reprlib.Repr()
+_SHOW.maxstring = _SHOW.maxother = _SHOW.maxlong = 60
 
 
 class ConfigError(UserInputError):
@@ -83,17 +88,39 @@ class ServiceConfig:
     nav_log_backups: int
 
 
+def _show(v: Any) -> str:
+    """A value in a one-line message: its repr, shortened (a value may be a 4000-digit number or a long list)."""
+    return _SHOW.repr(v)
+
+
+def _text(s: str) -> str:
+    """A key or a path in a one-line message: as it is, or its repr when it holds a newline or control byte."""
+    return s if s.isprintable() else repr(s)
+
+
+def _finite(v: float) -> bool:
+    """``math.isfinite`` that also takes integers too large for a float (False)."""
+    try:
+        return math.isfinite(v)
+    except OverflowError:
+        return False
+
+
 class _Node:
     """A YAML mapping with the line of every key, typed getters, and unknown-key checks."""
 
-    def __init__(self, node: yaml.Node, origin: Path, path: str) -> None:
+    def __init__(self, node: yaml.Node, origin: Path, path: str, line: int | None = None) -> None:
         self.origin, self.path = origin, path
-        self.line = node.start_mark.line + 1
+        self.line = node.start_mark.line + 1 if line is None else line  # a section's: its key's line
         if not isinstance(node, yaml.MappingNode):
             raise ConfigError(f"{origin}:{self.line}: {path or 'config'}: expected a mapping")
         self.items: dict[str, tuple[yaml.Node, int]] = {}
         for k, v in node.value:
-            self.items[str(k.value)] = (v, k.start_mark.line + 1)
+            name, line = str(k.value) if isinstance(k, yaml.ScalarNode) else f"<{k.id}>", k.start_mark.line + 1
+            if name in self.items:  # YAML would silently take the last one: the operator edited one of them
+                raise ConfigError(f"{origin}:{line}: {_text(self.key(name))}: duplicate key (first on line "
+                                  f"{self.items[name][1]})")  # fmt: skip
+            self.items[name] = (v, line)
         self.used: set[str] = set()
 
     def key(self, k: str) -> str:
@@ -101,7 +128,7 @@ class _Node:
 
     def fail(self, k: str, msg: str) -> ConfigError:
         line = self.items[k][1] if k in self.items else self.line
-        return ConfigError(f"{self.origin}:{line}: {self.key(k)}: {msg}")
+        return ConfigError(f"{self.origin}:{line}: {_text(self.key(k))}: {msg}")
 
     def value(self, k: str, default: Any = ...) -> Any:
         self.used.add(k)
@@ -109,21 +136,28 @@ class _Node:
             if default is ...:
                 raise self.fail(k, "missing required key")
             return default
-        return yaml.SafeLoader("").construct_object(self.items[k][0], deep=True)
+        try:
+            return yaml.SafeLoader("").construct_object(self.items[k][0], deep=True)
+        except yaml.YAMLError as e:  # a tag (!!python/name:...), a recursive alias
+            raise self.fail(k, f"not a plain YAML value: {_one_line(e)}") from None
+        except (ValueError, OverflowError) as e:  # a number beyond 4300 digits, a date like 2024-13-45
+            raise self.fail(k, f"unreadable value: {_one_line(e)}") from None
+        except RecursionError:
+            raise self.fail(k, "value nested too deeply") from None
 
     def sub(self, k: str) -> _Node:
         self.used.add(k)
         if k not in self.items:
             raise self.fail(k, "missing required section")
-        return _Node(self.items[k][0], self.origin, self.key(k))
+        return _Node(self.items[k][0], self.origin, self.key(k), self.items[k][1])
 
     def has(self, k: str) -> bool:
         return k in self.items
 
     def num(self, k: str, default: Any = ..., *, lo: float = -math.inf, hi: float = math.inf) -> float:
         v = self.value(k, default)
-        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-            raise self.fail(k, f"expected a number, got {v!r}")
+        if isinstance(v, bool) or not isinstance(v, int | float) or not _finite(v):
+            raise self.fail(k, f"expected a number, got {_show(v)}")
         if not lo <= v <= hi:
             raise self.fail(k, f"{v} is outside [{lo:g}, {hi:g}]")
         return float(v)
@@ -131,36 +165,40 @@ class _Node:
     def integer(self, k: str, default: Any = ..., *, lo: int, hi: int) -> int:
         v = self.value(k, default)
         if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
-            raise self.fail(k, f"expected an integer in [{lo}, {hi}], got {v!r}")
+            raise self.fail(k, f"expected an integer in [{lo}, {hi}], got {_show(v)}")
         return int(v)
 
     def boolean(self, k: str, default: Any = ...) -> bool:
         v = self.value(k, default)
         if not isinstance(v, bool):
-            raise self.fail(k, f"expected true or false, got {v!r}")
+            raise self.fail(k, f"expected true or false, got {_show(v)}")
         return v
 
     def choice(self, k: str, options: tuple[str, ...], default: Any = ...) -> str:
         v = self.value(k, default)
         if v not in options:
-            raise self.fail(k, f"expected one of {', '.join(options)}, got {v!r}")
+            raise self.fail(k, f"expected one of {', '.join(options)}, got {_show(v)}")
         return str(v)
 
     def text(self, k: str, default: Any = ...) -> str:
         v = self.value(k, default)
         if not isinstance(v, str) or not v:
-            raise self.fail(k, f"expected a non-empty string, got {v!r}")
+            raise self.fail(k, f"expected a non-empty string, got {_show(v)}")
         return v
 
     def path_(self, k: str, default: Any = ..., *, exists: bool = True) -> Path | None:
         v = self.value(k, default)
         if v is None:
             return None
-        if not isinstance(v, str) or not v:
-            raise self.fail(k, f"expected a path, got {v!r}")
+        if not isinstance(v, str) or not v or "\0" in v:
+            raise self.fail(k, f"expected a path, got {_show(v)}")
         p = Path(v) if Path(v).is_absolute() else (self.origin.parent / v)
-        if exists and not p.exists():
-            raise self.fail(k, f"{p} does not exist")
+        try:
+            missing = exists and not p.exists()
+        except OSError as e:  # a name too long for the file system
+            raise self.fail(k, f"{_text(str(p))}: {e.strerror or e}") from None
+        if missing:
+            raise self.fail(k, f"{_text(str(p))} does not exist")
         return p
 
     def finish(self) -> None:
@@ -169,23 +207,42 @@ class _Node:
                 raise self.fail(k, "unknown key")
 
 
+def _one_line(e: BaseException) -> str:
+    """An exception's message on one line (PyYAML's span several: problem, context and a source excerpt)."""
+    text = getattr(e, "problem", None) or str(e) or type(e).__name__
+    return " ".join(str(text).split())
+
+
 def load_config(path: Path) -> ServiceConfig:
     """Read and validate the service configuration (module docstring)."""
     try:
-        text = path.read_text()
+        raw = path.read_bytes()
     except OSError as e:
         raise ConfigError(f"{path}: cannot read the config: {e.strerror or e}") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as e:
+        bad_line = raw.count(b"\n", 0, e.start) + 1
+        raise ConfigError(f"{path}:{bad_line}: not UTF-8 text") from None
     try:
         root_node = yaml.compose(text, Loader=yaml.SafeLoader)
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
-        raise ConfigError(f"{path}:{mark.line + 1 if mark else '?'}: YAML syntax error") from None
+        if mark is not None:
+            line = str(mark.line + 1)
+        elif isinstance(e, yaml.reader.ReaderError):  # a control character: the reader knows its offset
+            line = str(text.count("\n", 0, e.position) + 1)
+        else:
+            line = "?"
+        raise ConfigError(f"{path}:{line}: YAML syntax error: {_one_line(e)}") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: YAML nested too deeply") from None
     if root_node is None:
         raise ConfigError(f"{path}: empty config")
     try:
         return _read(_Node(root_node, path, ""))
-    except yaml.YAMLError as e:  # a value that is not plain YAML (a tag, a bad merge)
-        raise ConfigError(f"{path}: {e}") from None
+    except yaml.YAMLError as e:  # anything the per-key reading has not already named
+        raise ConfigError(f"{path}: {_one_line(e)}") from None
 
 
 def _read(r: _Node) -> ServiceConfig:
@@ -213,7 +270,8 @@ def _read(r: _Node) -> ServiceConfig:
     if MODES[mode].force == "deim-nn" and nn is None:
         raise nav.fail("mode", f"{mode} needs models.deim_nn")
     mag = nav.value("mag_field_ned_ut")
-    if not (isinstance(mag, list) and len(mag) == 3 and all(isinstance(v, int | float) for v in mag)):
+    if not (isinstance(mag, list) and len(mag) == 3
+            and all(isinstance(v, int | float) and not isinstance(v, bool) and _finite(v) for v in mag)):  # fmt: skip
         raise nav.fail("mag_field_ned_ut", "expected [north, east, down] in µT (the WMM field at the site)")
     if not 10.0 < math.hypot(*mag) < 80.0:
         raise nav.fail("mag_field_ned_ut", f"|B| = {math.hypot(*mag):.1f} µT is not an Earth field (25..65 µT)")

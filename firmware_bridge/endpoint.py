@@ -1,12 +1,33 @@
 """A MAVLink 2 endpoint on a transport: pymavlink's generated ``ardupilotmega`` codec, constructed here
 (not through ``mavutil``: no dialect globals, no environment variables), with optional signing.
 
-Frames that fail the CRC are counted (``bad_frames``); with signing required, unsigned or badly signed
-frames are counted (``rejected_unsigned``) and never reach the service.
+**Framing** is ours, the decoding (CRC, signature, fields) pymavlink's. pymavlink's own parser trusts the
+length byte of anything that starts with a magic byte: one stray ``0xFD`` in line noise swallows the next
+255 + 12 bytes, valid frames included, and a frame of an unknown message id is returned without a CRC check.
+Here a candidate frame that fails (unknown message id, bad flags, bad CRC) is skipped by one byte only and
+the search for the next magic byte starts again, as a C parser that resynchronises does: every intact
+frame after garbage is decoded. A candidate is held until its declared length has arrived, at most
+:data:`MAX_FRAME_BYTES`.
+
+**Counters.** ``bad_frames``: stretches of bytes between two good frames that are not a frame (garbage,
+a truncated or corrupted frame, a frame of a message id we do not know: its CRC cannot be checked); each
+stretch counts once. ``rejected_unsigned``: frames with a valid CRC but no or a bad signature while signing
+is required; they never reach the service. ``lost_frames``: frames missing from the sequence numbers of
+each (system, component) source (``lost_by_source``), as MAVProxy's link statistics count them: n numbers
+skipped (mod 256) count n; a repeated number (a duplicate) and a source's first frame count nothing.
+
+Limits: a candidate whose declared length reaches past the bytes received waits for them (a valid frame
+behind a stray magic byte is decoded once up to 280 more bytes have come); a signed frame cut inside its
+13-byte signature block, on a link without the key, takes that many bytes of the next frame as its
+signature (the CRC does not cover the block): that next frame is lost, not the cut one. pymavlink checked
+a signature only after storing its timestamp: one forged frame with a later timestamp locked the genuine
+stream out; :class:`_Codec` compares the signature first.
 """
 
 from __future__ import annotations
 
+import hashlib
+import re
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,12 +38,18 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from firmware_bridge.transport import Transport
 from vdm_aero.errors import UserInputError
 
-__all__ = ["MavEndpoint", "MavlinkMessage", "SigningKey", "load_signing_key"]
+__all__ = ["MAX_FRAME_BYTES", "MavEndpoint", "MavlinkMessage", "SigningKey", "load_signing_key"]
 
 MavlinkMessage = Any  # pymavlink messages are untyped
 SIGNING_KEY_BYTES = 32
 SIGNING_EPOCH_UNIX_S = 1420070400  # 2015-01-01T00:00:00Z: the origin of MAVLink signing timestamps
 SIGNING_TICKS_PER_S = 100_000  # 10 µs
+SIGNATURE_BYTES = 6  # the signature proper: the last 6 of the 13-byte signature block
+CRC_BYTES = 2
+MAX_FRAME_BYTES = mavlink2.HEADER_LEN_V2 + 255 + CRC_BYTES + mavlink2.MAVLINK_SIGNATURE_BLOCK_LEN  # 280
+SEQ_MODULO = 256
+_FRAME_START = re.compile(b"[\xfd\xfe]")  # MAVLink 2, MAVLink 1 magic
+_REJECTED = object()  # a well-framed frame refused by the signature check
 
 
 @dataclass(frozen=True)
@@ -53,17 +80,33 @@ def _signing_now() -> int:
     return int(max(time.time() - SIGNING_EPOCH_UNIX_S, 0.0) * SIGNING_TICKS_PER_S)
 
 
+class _Codec(mavlink2.MAVLink):
+    def check_signature(self, msgbuf: bytearray, srcSystem: int, srcComponent: int) -> bool:
+        """pymavlink stores a stream's timestamp before it compares the signature: one frame with a bad
+        signature and a far-future timestamp would then lock the genuine stream out. Compare first."""
+        key = self.signing.secret_key
+        assert key is not None
+        signature = hashlib.sha256(key + bytes(msgbuf[:-SIGNATURE_BYTES])).digest()[:SIGNATURE_BYTES]
+        if signature != msgbuf[-SIGNATURE_BYTES:]:
+            return False
+        return bool(super().check_signature(msgbuf, srcSystem, srcComponent))
+
+
 class MavEndpoint:
-    """Encode, sign and send; receive, check and decode. ``system_id``/``component_id`` are ours."""
+    """Encode, sign and send; receive, frame, check and decode. ``system_id``/``component_id`` are ours."""
 
     def __init__(self, transport: Transport, *, system_id: int, component_id: int, signing: SigningKey | None) -> None:
         self.transport = transport
-        self.mav = mavlink2.MAVLink(self, srcSystem=system_id, srcComponent=component_id)
-        self.mav.robust_parsing = True
+        self.mav = _Codec(self, srcSystem=system_id, srcComponent=component_id)
         self.bad_frames = 0
         self.rejected_unsigned = 0
+        self.lost_frames = 0
+        self.lost_by_source: dict[tuple[int, int], int] = {}
         self.sent: dict[str, int] = {}
         self.received_at = 0.0
+        self._rx = bytearray()  # bytes of a frame not complete yet (at most MAX_FRAME_BYTES - 1)
+        self._in_sync = True  # False from the first byte of a bad stretch to the next good frame
+        self._last_seq: dict[tuple[int, int], int] = {}
         if signing is not None:
             s = self.mav.signing
             s.secret_key = signing.key
@@ -75,6 +118,11 @@ class MavEndpoint:
             s.allow_unsigned_callback = lambda _mav, msg_id: (
                 not require or msg_id == mavlink2.MAVLINK_MSG_ID_RADIO_STATUS
             )
+
+    @property
+    def pending_bytes(self) -> int:
+        """Bytes received but not decided yet: the start of a frame still arriving (< MAX_FRAME_BYTES)."""
+        return len(self._rx)
 
     def write(self, frame: bytes) -> None:
         """The file-like sink of ``MAVLink.send``."""
@@ -93,13 +141,84 @@ class MavEndpoint:
         self.received_at = time.monotonic()  # before decoding: latency is counted from the bytes' arrival
         if not data:
             return []
+        buf = self._rx
+        buf += data
         out = []
-        for msg in self.mav.parse_buffer(data) or ():
-            if msg.get_type() == "BAD_DATA":
-                if "signature" in str(getattr(msg, "reason", "")):
-                    self.rejected_unsigned += 1
-                else:
-                    self.bad_frames += 1
+        i, n = 0, len(buf)
+        while i < n:
+            if buf[i] != mavlink2.PROTOCOL_MARKER_V2 and buf[i] != mavlink2.PROTOCOL_MARKER_V1:
+                m = _FRAME_START.search(buf, i)
+                i = m.start() if m is not None else n
+                self._lost_sync()
                 continue
-            out.append(msg)
+            size = _frame_size(buf, i, n)
+            if size is None:
+                break  # the rest of this frame has not arrived yet
+            msg = self._decode(buf[i : i + size]) if size else None
+            if msg is None:  # not a frame: resynchronise from the next byte
+                self._lost_sync()
+                i += 1
+                continue
+            self._in_sync = True
+            i += size
+            if msg is not _REJECTED:
+                self._count_sequence(msg)
+                out.append(msg)
+        del buf[:i]
+        if out:
+            confirm = getattr(self.transport, "confirm_peer", None)
+            if confirm is not None:
+                confirm()
         return out
+
+    def _lost_sync(self) -> None:
+        if self._in_sync:
+            self._in_sync = False
+            self.bad_frames += 1
+
+    def _decode(self, frame: bytearray) -> MavlinkMessage | None:
+        """The message; :data:`_REJECTED` for a frame refused by the signature check; None if not a frame."""
+        try:
+            return self.mav.decode(frame)
+        except mavlink2.MAVError as e:
+            if e.message == "Invalid signature":  # raised only after the CRC has passed: a frame, refused
+                self.rejected_unsigned += 1
+                return _REJECTED
+            return None
+
+    def _count_sequence(self, msg: MavlinkMessage) -> None:
+        src = (msg.get_srcSystem(), msg.get_srcComponent())
+        seq = msg.get_seq()
+        last = self._last_seq.get(src)
+        self._last_seq[src] = seq
+        if last is None or seq == last:
+            return
+        gap = (seq - last - 1) % SEQ_MODULO
+        if gap:
+            self.lost_frames += gap
+            self.lost_by_source[src] = self.lost_by_source.get(src, 0) + gap
+
+
+def _frame_size(buf: bytearray, i: int, n: int) -> int | None:
+    """The length of the candidate frame at ``buf[i]`` (a magic byte): 0 when its header rules out a frame
+    (flags we do not know, a message id not in the dialect, a MAVLink 1 payload longer than the message),
+    None while its header or body is incomplete. MAVLink 2 payloads may be longer than our definition of the
+    message (extension fields a newer dialect added): they are decoded, the unknown fields dropped."""
+    if buf[i] == mavlink2.PROTOCOL_MARKER_V2:
+        if n - i < mavlink2.HEADER_LEN_V2:
+            return None
+        flags = buf[i + 2]
+        msg_id = buf[i + 7] | buf[i + 8] << 8 | buf[i + 9] << 16
+        if flags & ~mavlink2.MAVLINK_IFLAG_SIGNED or msg_id not in mavlink2.mavlink_map:
+            return 0
+        size = mavlink2.HEADER_LEN_V2 + buf[i + 1] + CRC_BYTES
+        if flags & mavlink2.MAVLINK_IFLAG_SIGNED:
+            size += mavlink2.MAVLINK_SIGNATURE_BLOCK_LEN
+    else:
+        if n - i < mavlink2.HEADER_LEN_V1:
+            return None
+        msg_type = mavlink2.mavlink_map.get(buf[i + 5])
+        if msg_type is None or buf[i + 1] > msg_type.unpacker.size:  # MAVLink 1 carries no extension fields
+            return 0
+        size = mavlink2.HEADER_LEN_V1 + buf[i + 1] + CRC_BYTES
+    return size if n - i >= size else None

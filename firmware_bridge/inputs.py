@@ -5,7 +5,10 @@
   with ``millis()`` at the call, so the ports of one script update can straddle a millisecond). A frame is
   complete when every port has arrived; a partial one is closed after ``timeout_s`` with NaN for the missing
   ports (they then go to the gappy model) and counted.
-* :class:`ImuIntegrator`: IMU samples → filter-rate increments (Δθ, Δv), as the log replay builds them.
+* :class:`ImuIntegrator`: IMU samples → filter-rate increments (Δθ, Δv), as the log replay builds them. A
+  sample with a non-finite or impossible rate or acceleration (beyond :data:`GYRO_MAX_RAD_S`,
+  :data:`ACCEL_MAX_M_S2`) is refused and counted (``rejected``): its neighbours integrate across it, so one
+  bad sample costs one sample, not the filter (a NaN increment would make the state non-finite: a reset).
 * :class:`AutopilotClock`: the autopilot's boot time → a continuous filter time across autopilot reboots,
   and TIMESYNC: the offset between the autopilot's clock and ours.
 """
@@ -26,6 +29,8 @@ from vdm_aero.nav.stream import IMU_GAP_S  # a longer gap is a link loss: restar
 __all__ = ["AutopilotClock", "ImuIntegrator", "PortAssembler", "PortFrameIn"]
 
 REBOOT_BACKSTEP_S = 1.0  # the autopilot's boot time stepping back this far is a reboot
+GYRO_MAX_RAD_S = 100.0  # 5730 °/s: nearly 3× the widest MEMS gyro range (2000 °/s)
+ACCEL_MAX_M_S2 = 2000.0  # ≈ 200 g: far beyond a navigation accelerometer's range (16–32 g)
 
 
 @dataclass(frozen=True)
@@ -102,6 +107,7 @@ class ImuIntegrator:
         self._sum = [0.0] * 6  # Δθ (3), Δv (3): plain floats, summed 400 times a second
         self._dt = 0.0
         self.gaps = 0
+        self.rejected = 0
 
     def reset(self) -> None:
         self._prev = None
@@ -110,6 +116,17 @@ class ImuIntegrator:
 
     def add(self, s: ImuSample) -> tuple[float, ImuIncrement] | None:
         """A sample; returns (end time [s], increment) when a filter step is complete."""
+        w, f = s.gyro_b_rad_s, s.accel_b_m_s2
+        if not (
+            abs(w[0]) <= GYRO_MAX_RAD_S
+            and abs(w[1]) <= GYRO_MAX_RAD_S
+            and abs(w[2]) <= GYRO_MAX_RAD_S
+            and abs(f[0]) <= ACCEL_MAX_M_S2
+            and abs(f[1]) <= ACCEL_MAX_M_S2
+            and abs(f[2]) <= ACCEL_MAX_M_S2
+        ):
+            self.rejected += 1  # NaN fails every comparison: refused too
+            return None
         prev, self._prev = self._prev, s
         if prev is None:
             return None

@@ -18,6 +18,7 @@ import logging
 import logging.handlers
 import math
 import os
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -25,19 +26,13 @@ from typing import Any
 import numpy as np
 
 from vdm_aero.errors import UserInputError
-from vdm_aero.nav.filter import NavFilter
-from vdm_aero.nav.state import IDX
+from vdm_aero.nav.filter import NavFilter, slow_index
 
 __all__ = ["NAV_LOG_COLUMNS", "FilterStateStore", "NavLog"]
 
 FORMAT = "vdm-aero-filter-state/1"
-SLOW_STATES = ("bg", "ba", "wind", "bm", "baro", "aero")
 WIND_MAX_AGE_S = 600.0
 RESTORE_SIGMA_FACTOR = 2.0
-
-
-def _slow_index() -> np.ndarray:
-    return np.concatenate([np.arange(IDX[k].start, IDX[k].stop) for k in SLOW_STATES])
 
 
 class FilterStateStore:
@@ -50,24 +45,24 @@ class FilterStateStore:
     def save(self, f: NavFilter) -> bool:
         if f.x is None or f.engine is None:
             return False
-        x = f.x
-        idx = _slow_index()
-        values = np.concatenate([x.b_gyro_b, x.b_accel_b, x.wind_ned, x.b_mag_b_ut, [x.b_baro_m], x.aero]).astype(
-            np.float64
-        )
+        values, cov = f.slow_states()
         if not np.all(np.isfinite(values)):
             return False  # never persist a diverged filter
         buf = io.BytesIO()
         gust = np.asarray(f.process.gust_sigma_m_s)
         np.savez(buf, format=np.array(FORMAT), mode=np.array(f.mode), saved_unix_s=np.array(time.time()),
-                 values=values, cov=f.P[np.ix_(idx, idx)], gust_sigma_m_s=gust)  # fmt: skip
+                 values=values, cov=cov, gust_sigma_m_s=gust)  # fmt: skip
         self.path.parent.mkdir(parents=True, exist_ok=True)
         tmp = self.path.with_name(f".{self.path.name}.tmp")
-        with open(tmp, "wb") as fh:
-            fh.write(buf.getvalue())
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, self.path)
+        try:
+            with open(tmp, "wb") as fh:
+                fh.write(buf.getvalue())
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.replace(tmp, self.path)
+        except OSError:
+            tmp.unlink(missing_ok=True)  # a full disk: the last good state file stays, the partial one goes
+            raise
         self.saves += 1
         return True
 
@@ -80,7 +75,7 @@ class FilterStateStore:
                 d = {k: z[k] for k in z.files}
         except (OSError, ValueError) as e:
             raise UserInputError(f"{self.path}: not a filter state file ({e}); delete it to start afresh") from None
-        n = len(_slow_index())
+        n = len(slow_index())
         if str(d.get("format")) != FORMAT or d["values"].shape != (n,) or d["cov"].shape != (n, n):
             raise UserInputError(f"{self.path}: not a {FORMAT} file; delete it to start afresh")
         return d
@@ -88,28 +83,10 @@ class FilterStateStore:
     @staticmethod
     def restore(f: NavFilter, saved: dict[str, Any]) -> list[str]:
         """Put saved slow states into an initialised filter; returns the names restored."""
-        assert f.x is not None and f.engine is not None
         age = time.time() - float(saved["saved_unix_s"])
-        v = np.asarray(saved["values"], dtype=np.float64)
-        idx = _slow_index()
-        x = f.x
-        x.b_gyro_b, x.b_accel_b = v[0:3].copy(), v[3:6].copy()
-        restored = ["bg", "ba", "bm", "baro", "aero"]
         keep_wind = 0.0 <= age <= WIND_MAX_AGE_S
-        if keep_wind:
-            x.wind_ned = v[6:9].copy()
-            restored.insert(2, "wind")
-        x.b_mag_b_ut, x.b_baro_m, x.aero = v[9:12].copy(), float(v[12]), v[13:].copy()
-        p = f.P
-        block = np.asarray(saved["cov"]) * RESTORE_SIGMA_FACTOR**2
-        old = p[np.ix_(idx, idx)]
-        wind = np.isin(idx, np.arange(IDX["wind"].start, IDX["wind"].stop))
-        take = ~wind | keep_wind
-        p[np.ix_(idx, idx)] = np.where(np.outer(take, take), block, np.where(np.outer(~take, ~take), old, 0.0))
-        others = np.setdiff1d(np.arange(p.shape[0]), idx)
-        p[np.ix_(idx, others)] = 0.0  # the restored states are independent of the new pose
-        p[np.ix_(others, idx)] = 0.0
-        f.engine.P = p
+        cov = np.asarray(saved["cov"], dtype=np.float64) * RESTORE_SIGMA_FACTOR**2
+        restored = f.restore_slow_states(np.asarray(saved["values"], dtype=np.float64), cov, keep_wind=keep_wind)
         gs = np.asarray(saved["gust_sigma_m_s"], dtype=np.float64)
         if gs.shape == (3,) and np.all(np.isfinite(gs)):
             f.process.set_gust_sigma(gs)
@@ -118,8 +95,18 @@ class FilterStateStore:
 
 NAV_LOG_COLUMNS = (
     "unix_s,boot_s,lat_deg,lon_deg,alt_m,north_m,east_m,down_m,vn_m_s,ve_m_s,vd_m_s,roll_rad,pitch_rad,yaw_rad,"
-    "sigma_h_m,wind_n_m_s,wind_e_m_s,gnss,mode"
+    "sigma_h_m,wind_n_m_s,wind_e_m_s,gnss,mode,ports_ok,health"
 )
+
+
+class _RaisingRotatingHandler(logging.handlers.RotatingFileHandler):
+    """logging swallows a failed write (it prints a traceback to stderr): keep the error for NavLog to raise."""
+
+    error: OSError | None = None
+
+    def handleError(self, record: logging.LogRecord) -> None:
+        e = sys.exc_info()[1]
+        self.error = e if isinstance(e, OSError) else OSError(str(e))
 
 
 class NavLog:
@@ -127,7 +114,7 @@ class NavLog:
 
     def __init__(self, path: Path, *, max_bytes: int, backups: int) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
-        self._handler = logging.handlers.RotatingFileHandler(path, maxBytes=max_bytes, backupCount=backups)
+        self._handler = _RaisingRotatingHandler(path, maxBytes=max_bytes, backupCount=backups)
         self._handler.setFormatter(logging.Formatter("%(message)s"))
         self._logger = logging.Logger(f"vdm-aero.navlog.{path}")  # not registered globally: no shared state
         self._logger.propagate = False
@@ -135,7 +122,11 @@ class NavLog:
         self._logger.info("# " + NAV_LOG_COLUMNS)
 
     def write(self, row: list[Any]) -> None:
+        """Append a row; raises the OSError of a failed write (a full disk) for the caller to count."""
+        self._handler.error = None
         self._logger.info(",".join(f"{v:.9g}" if isinstance(v, float) and math.isfinite(v) else str(v) for v in row))
+        if self._handler.error is not None:
+            raise self._handler.error
 
     def close(self) -> None:
         self._handler.close()

@@ -49,6 +49,9 @@ TIMESYNC_S = 2.0
 STREAM_CHECK_S = 3.0
 STREAM_MIN_FRACTION = 0.5  # a stream arriving at under half its requested rate is requested again
 AUTOPILOT_LOST_S = 3.0  # no autopilot HEARTBEAT this long: the link is down
+UNIX_PLAUSIBLE_S = (1_420_070_400.0, 4_102_444_800.0)  # 2015-01-01 … 2100-01-01: what a GNSS-set clock can say
+SOLUTION_STALE_S = 0.5  # a filter this far behind the autopilot's clock has no solution to give
+LINK_GAP_S = 0.5  # the IMU (50-400 Hz) silent this long in the autopilot's time: a link gap, reported
 POLL_MAX_S = 0.02
 PERIODIC_S = 0.005
 ERROR_LOG_EVERY_S = 10.0
@@ -67,6 +70,10 @@ class ServiceStats:
     solutions_sent: int = 0
     named_values_sent: int = 0
     filter_resets: int = 0
+    duplicates: int = 0  # samples received again (a link or router repeating frames): dropped
+    link_gaps: list[dict[str, float]] = field(default_factory=list)  # {"wall_s", "autopilot_s"} per gap
+    storage_errors: dict[str, int] = field(default_factory=dict)  # "state"/"nav_log" → failed writes
+    last_storage_error: str = ""
     restored: list[str] = field(default_factory=list)
     latency_s: deque[float] = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))
 
@@ -124,11 +131,14 @@ class CompanionService:
         self._last_mag: tuple[float, float, float] | None = None
         self._last_baro_ms = -1
         self._last_gps_us = -1
+        self._last_imu_us = -1
+        self._last_imu_in = math.nan  # local time the latest IMU sample arrived
         self._boot_now_s = -math.inf  # the autopilot's time of the latest IMU sample
         self._stream_seen: dict[str, int] = dict.fromkeys(cfg.streams, 0)
         self._next: dict[str, float] = {}
         self._next_ap: dict[str, float] = {}
         self._error_logged: dict[str, float] = {}
+        self._force_streams = False
         self._inflation = outputs.inflation(cfg.outputs.solution_hz)
         self._handlers: dict[str, Callable[[MavlinkMessage, float], None]] = {
             "HEARTBEAT": self._on_heartbeat,
@@ -182,17 +192,33 @@ class CompanionService:
         try:
             handler(msg, t_in)
         except Exception as e:  # noqa: BLE001 - one bad message must not stop navigation; counted and logged
-            self.stats.handler_errors[kind] = self.stats.handler_errors.get(kind, 0) + 1
-            now = time.monotonic()
-            if now - self._error_logged.get(kind, -math.inf) > ERROR_LOG_EVERY_S:
-                self._error_logged[kind] = now
-                where = traceback.extract_tb(e.__traceback__)[-1]
-                self._print(f"vdm-aero serve: {kind} skipped: {type(e).__name__}: {e} "
-                            f"({where.filename.rsplit('/', 1)[-1]}:{where.lineno}); "
-                            f"{self.stats.handler_errors[kind]} so far")  # fmt: skip
+            self._count_error(kind, e)
+
+    def _count_error(self, kind: str, e: Exception) -> None:
+        """Count a failed message handler (or the periodic upkeep), logged at most every ERROR_LOG_EVERY_S."""
+        self.stats.handler_errors[kind] = self.stats.handler_errors.get(kind, 0) + 1
+        now = time.monotonic()
+        if now - self._error_logged.get(kind, -math.inf) > ERROR_LOG_EVERY_S:
+            self._error_logged[kind] = now
+            where = traceback.extract_tb(e.__traceback__)[-1]
+            self._print(f"vdm-aero serve: {kind} skipped: {type(e).__name__}: {e} "
+                        f"({where.filename.rsplit('/', 1)[-1]}:{where.lineno}); "
+                        f"{self.stats.handler_errors[kind]} so far")  # fmt: skip
 
     def _from_autopilot(self, msg: MavlinkMessage) -> bool:
         return self.autopilot is not None and msg.get_srcSystem() == self.autopilot[0]
+
+    def _link_gap(self, boot_s: float, t_in: float) -> None:
+        """The IMU resumes after ≥ LINK_GAP_S of the autopilot's time: a link drop-out (the autopilot's clock
+        ran on, ours saw nothing). Reported and counted; the streams are requested again (a router or radio
+        that dropped out may have lost the requests); the filter coasts through the gap (NavFilter)."""
+        gap = {"autopilot_s": boot_s - self._boot_now_s, "wall_s": t_in - self._last_imu_in, "at_boot_s": boot_s}
+        self.stats.link_gaps.append(gap)
+        self._force_streams = True
+        self._next.pop("streams", None)
+        self._print(f"vdm-aero serve: link back after {gap['autopilot_s']:.1f} s of autopilot time without data "
+                    f"({gap['wall_s']:.1f} s here); re-requesting streams; "
+                    f"{len(self.stats.link_gaps)} gap(s) so far")  # fmt: skip
 
     def _due(self, key: str, now: float, period_s: float) -> bool:
         """Periodic work on the local clock (link upkeep, status, watchdog)."""
@@ -229,12 +255,15 @@ class CompanionService:
             self._next.pop("streams", None)  # request the streams now (a new or rebooted autopilot)
         self._last_ap_heartbeat = t_in
 
-    def _imu(self, s: units.ImuSample) -> None:
+    def _imu(self, s: units.ImuSample, t_in: float) -> None:
+        if math.isfinite(self._boot_now_s) and s.t_s - self._boot_now_s >= LINK_GAP_S:
+            self._link_gap(s.t_s, t_in)
+        self._last_imu_in = t_in
         if self.clock.observe_boot_s(s.t_s):
             self._print(f"vdm-aero serve: autopilot reboot (boot time {s.t_s:.1f} s); re-requesting streams")
             self.imu_int.reset()
             self._next.pop("streams", None)
-            self._last_baro_ms = self._last_gps_us = -1
+            self._last_baro_ms = self._last_gps_us = self._last_imu_us = -1
         self._boot_now_s = s.t_s
         if s.mag_b_ut is not None and s.mag_b_ut != self._last_mag and self.driver is not None:
             self._last_mag = s.mag_b_ut  # HIGHRES_IMU repeats a slower magnetometer's sample: pass new ones
@@ -246,12 +275,22 @@ class CompanionService:
             self._check_finite()
 
     def _on_highres_imu(self, msg: MavlinkMessage, t_in: float) -> None:
-        if self._from_autopilot(msg):
-            self._imu(units.from_highres_imu(msg))
+        if not self._from_autopilot(msg):
+            return
+        if msg.time_usec == self._last_imu_us:
+            self.stats.duplicates += 1  # integrating a sample twice would corrupt the increments
+            return
+        self._last_imu_us = msg.time_usec
+        self._imu(units.from_highres_imu(msg), t_in)
 
     def _on_scaled_imu(self, msg: MavlinkMessage, t_in: float) -> None:
-        if self._from_autopilot(msg) and "HIGHRES_IMU" not in self.cfg.streams:
-            self._imu(units.from_scaled_imu(msg))
+        if not self._from_autopilot(msg) or "HIGHRES_IMU" in self.cfg.streams:
+            return
+        if msg.time_boot_ms == self._last_imu_us:
+            self.stats.duplicates += 1
+            return
+        self._last_imu_us = msg.time_boot_ms
+        self._imu(units.from_scaled_imu(msg), t_in)
 
     def _on_scaled_pressure(self, msg: MavlinkMessage, t_in: float) -> None:
         if not self._from_autopilot(msg):
@@ -351,8 +390,12 @@ class CompanionService:
         self.driver.fuse_ports(solved)
 
     def _on_system_time(self, msg: MavlinkMessage, t_in: float) -> None:
-        if self._from_autopilot(msg) and msg.time_unix_usec > 0:
-            self._unix_minus_boot_s = msg.time_unix_usec * 1e-6 - msg.time_boot_ms * 1e-3
+        if not self._from_autopilot(msg) or msg.time_unix_usec <= 0:
+            return  # 0: the autopilot has no UTC yet
+        unix_s = msg.time_unix_usec * 1e-6
+        if not UNIX_PLAUSIBLE_S[0] <= unix_s <= UNIX_PLAUSIBLE_S[1]:
+            raise ValueError(f"time_unix_usec {msg.time_unix_usec}: not a UTC time between 2015 and 2100")
+        self._unix_minus_boot_s = unix_s - msg.time_boot_ms * 1e-3
 
     def _on_timesync(self, msg: MavlinkMessage, t_in: float) -> None:
         if msg.tc1 != 0 and self._from_autopilot(msg):
@@ -368,6 +411,8 @@ class CompanionService:
         f = self.filter
         if f is None or f.x is None or self.frame is None or not math.isfinite(self._boot_now_s):
             return None
+        if self.clock.filter_s(self._boot_now_s) - f.t_s > SOLUTION_STALE_S:
+            return None  # the IMU resumed after a gap and the filter has not caught up: its pose is old
         x = f.x
         lat, lon, alt = self.frame.to_geodetic(float(x.p_ned[0]), float(x.p_ned[1]), float(x.p_ned[2]))
         p = f.P
@@ -444,6 +489,12 @@ class CompanionService:
 
     # ----------------------------------------------------------------------------------- periodic
     def _periodic(self, now: float) -> None:
+        try:
+            self._upkeep(now)
+        except Exception as e:  # noqa: BLE001 - an output built from bad input must not stop navigation
+            self._count_error("periodic", e)
+
+    def _upkeep(self, now: float) -> None:
         if (fr := self.assembler.expire(now)) is not None:
             self._port_frame(fr)
         if self._due("heartbeat", now, HEARTBEAT_S):
@@ -470,10 +521,11 @@ class CompanionService:
     def _request_streams(self) -> None:
         """SET_MESSAGE_INTERVAL for every configured stream that is missing or slow since the last check."""
         assert self.autopilot is not None
+        force, self._force_streams = self._force_streams, False
         for name, hz in self.cfg.streams.items():
             seen = self._stream_seen.get(name, 0)
             self._stream_seen[name] = 0
-            if hz > 0 and seen >= STREAM_MIN_FRACTION * hz * STREAM_CHECK_S:
+            if not force and hz > 0 and seen >= STREAM_MIN_FRACTION * hz * STREAM_CHECK_S:
                 continue
             msg_id = getattr(mavlink2, f"MAVLINK_MSG_ID_{name}")
             interval_us = 1e6 / hz if hz > 0 else -1
@@ -482,19 +534,42 @@ class CompanionService:
                                                          interval_us, 0, 0, 0, 0, 0))  # fmt: skip
             self.stats.stream_requests += 1
 
+    def _storage_failed(self, what: str, e: OSError) -> None:
+        """A write to the state directory failed (full disk, read-only, removed): navigation goes on; counted,
+        in the status line, and logged when it starts failing and every ERROR_LOG_EVERY_S after."""
+        n = self.stats.storage_errors[what] = self.stats.storage_errors.get(what, 0) + 1
+        self.stats.last_storage_error = f"{what}: {e.strerror or e}"
+        now = time.monotonic()
+        if now - self._error_logged.get("storage:" + what, -math.inf) > ERROR_LOG_EVERY_S:
+            self._error_logged["storage:" + what] = now
+            self._print(f"vdm-aero serve: cannot write the {what.replace('_', ' ')}: {e.strerror or e} "
+                        f"({getattr(e, 'filename', None) or ''}); navigation goes on; {n} failed write(s)")  # fmt: skip
+
     def _log_solution(self) -> None:
         s = self.solution()
         f = self.filter
         if s is None or f is None or self.navlog is None:
             return
         roll, pitch, yaw = euler_from_quat(s.q_nb)
+        try:
+            self._write_nav_row(s, f, roll, pitch, yaw)
+        except OSError as e:
+            self._storage_failed("nav_log", e)
+
+    def _write_nav_row(self, s: outputs.Solution, f: NavFilter, roll: float, pitch: float, yaw: float) -> None:
+        assert self.navlog is not None
         self.navlog.write([s.unix_s, s.boot_s, s.lat_deg, s.lon_deg, s.alt_m, *map(float, s.p_ned_m),
                            *map(float, s.v_ned_m_s), roll, pitch, yaw, s.sigma_h_m, float(s.wind_ned_m_s[0]),
-                           float(s.wind_ned_m_s[1]), "outage" if f.in_outage else "aided", f.mode])  # fmt: skip
+                           float(s.wind_ned_m_s[1]), "outage" if f.in_outage else "aided", f.mode,
+                           f.port_health[0], self._health_code()])  # fmt: skip
 
     def _save_state(self) -> None:
-        if self.filter is not None:
+        if self.filter is None:
+            return
+        try:
             self.store.save(self.filter)
+        except OSError as e:
+            self._storage_failed("state", e)
 
     # ------------------------------------------------------------------------------------- status
     def status_line(self) -> str:
@@ -511,8 +586,11 @@ class CompanionService:
         return (f"status: {h['mode']} gnss={h['gnss']} ports {h['ports_ok']}/{h['ports']}{fb} "
                 f"σh={h['horizontal_sigma_m']:.1f} m wind={wind:.1f} m/s frames {self.assembler.counts['complete']}"
                 f"+{self.assembler.counts['partial']} partial, rejected unsigned {self.ep.rejected_unsigned}, "
-                f"bad frames {self.ep.bad_frames}, errors {sum(self.stats.handler_errors.values())}, "
-                f"latency p99 {lat['p99']:.2f} ms")  # fmt: skip
+                f"bad frames {self.ep.bad_frames}, lost {getattr(self.ep, 'lost_frames', 0)}, "
+                f"errors {sum(self.stats.handler_errors.values())}, latency p99 {lat['p99']:.2f} ms"
+                + (f", link gaps {len(self.stats.link_gaps)}" if self.stats.link_gaps else "")
+                + (f", STORAGE FAILING ({self.stats.last_storage_error})"
+                   if self.stats.storage_errors else ""))  # fmt: skip
 
     def summary(self) -> dict[str, Any]:
         f = self.filter
@@ -527,6 +605,12 @@ class CompanionService:
             "solutions_sent": self.stats.solutions_sent,
             "named_values_sent": self.stats.named_values_sent,
             "filter_resets": self.stats.filter_resets,
+            "duplicates": self.stats.duplicates,
+            "lost_frames": getattr(self.ep, "lost_frames", 0),
+            "link_gaps": list(self.stats.link_gaps),
+            "storage_errors": dict(self.stats.storage_errors),
+            "dropped_sends": self.transport.dropped_sends,
+            "reconnects": self.transport.reconnects,
             "autopilot_reboots": self.clock.reboots,
             "restored": list(self.stats.restored),
             "state_saves": self.store.saves,

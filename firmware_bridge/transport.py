@@ -19,6 +19,7 @@ import contextlib
 import select
 import socket
 import time
+from collections import deque
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -29,6 +30,7 @@ __all__ = ["BACKOFF_MAX_S", "BACKOFF_MIN_S", "Transport", "TransportUrl", "open_
 BACKOFF_MIN_S = 0.5
 BACKOFF_MAX_S = 8.0
 RECV_BYTES = 65536
+RECV_QUEUE_MAX = 512  # datagrams read per select: bounded, the socket's own buffer holds the rest
 SCHEMES = ("serial", "udpin", "udpout", "tcp")
 
 
@@ -108,6 +110,8 @@ class UdpTransport:
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 21)  # bursts of 400 Hz IMU + ports
         self._peer: tuple[str, int] | None = None
+        self._queue: deque[tuple[tuple[str, int], bytes]] = deque()
+        self.last_sender: tuple[str, int] | None = None
         if url.scheme == "udpin":
             self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
             try:
@@ -138,19 +142,33 @@ class UdpTransport:
             self.dropped_sends += 1
 
     def recv(self, timeout_s: float) -> bytes:
-        readable, _, _ = select.select([self._sock], [], [], max(timeout_s, 0.0))
-        if not readable:
+        """What arrived, from one sender (``last_sender``): datagrams from others wait for the next call, so
+        the endpoint can tell who sent the frames it accepts (:meth:`confirm_peer`)."""
+        if not self._queue:
+            readable, _, _ = select.select([self._sock], [], [], max(timeout_s, 0.0))
+            if not readable:
+                return b""
+            while len(self._queue) < RECV_QUEUE_MAX:
+                try:
+                    data, addr = self._sock.recvfrom(RECV_BYTES)
+                except (BlockingIOError, ConnectionRefusedError):
+                    break
+                self._queue.append(((str(addr[0]), int(addr[1])), data))
+        if not self._queue:
             return b""
+        sender = self._queue[0][0]
         chunks = []
-        while True:
-            try:
-                data, addr = self._sock.recvfrom(RECV_BYTES)
-            except (BlockingIOError, ConnectionRefusedError):
-                break
-            chunks.append(data)
-            if self.description.startswith("udpin"):
-                self._peer = (str(addr[0]), int(addr[1]))
+        while self._queue and self._queue[0][0] == sender:
+            chunks.append(self._queue.popleft()[1])
+        self.last_sender = sender
         return b"".join(chunks)
+
+    def confirm_peer(self) -> None:
+        """The last recv held frames the endpoint accepted (a valid frame; signed, when signing is required):
+        ``udpin`` replies go to that sender from now on. Garbage or a rogue's unsigned frames never steer
+        them."""
+        if self.description.startswith("udpin") and self.last_sender is not None:
+            self._peer = self.last_sender
 
     def close(self) -> None:
         self._sock.close()

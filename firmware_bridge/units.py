@@ -3,6 +3,14 @@
 Times stay in the autopilot's clock (seconds since its boot); :mod:`firmware_bridge.clock` maps them.
 Each ``from_*`` function takes one decoded pymavlink message and returns a frozen sample, or None when the
 message carries nothing usable (no fix, fields not updated).
+
+Values no sensor reports are stopped here, at the boundary, not in the filter: a non-finite magnetometer
+reading is dropped from its IMU sample, a non-finite or impossible IMU temperature is taken as unknown
+(:data:`UNKNOWN_TEMPERATURE_C`, as SCALED_IMU's 0), a GNSS position off the globe is no fix, a non-finite
+pitot reading is no pitot. A static pressure no atmosphere has (≤ 0, NaN, above any sea-level record) raises
+``ValueError``: the service counts and logs the message and skips it, before a density of 0 or below reaches
+the air-data equations. (Non-finite or impossible rates and accelerations are refused by
+:class:`firmware_bridge.inputs.ImuIntegrator`, where the time of the sample still counts.)
 """
 
 from __future__ import annotations
@@ -34,6 +42,10 @@ GAUSS_TO_UT = 100.0  # 1 G = 1e-4 T = 100 µT
 MGAUSS_TO_UT = 0.1
 HIGHRES_MAG_BITS = 0x1C0  # HIGHRES_IMU fields_updated: x/y/z mag
 UINT16_UNKNOWN = 65535
+MAX_LAT_DEG_E7, MAX_LON_DEG_E7 = 900_000_000, 1_800_000_000
+UNKNOWN_TEMPERATURE_C = 15.0  # an IMU temperature not reported (or impossible): ISA sea level
+IMU_TEMPERATURE_RANGE_C = (-100.0, 150.0)  # beyond any MEMS IMU's operating range: a sensor fault
+STATIC_PA_RANGE = (100.0, 120_000.0)  # 100 Pa ≈ 48 km altitude; 120 kPa is above the sea-level record (108.4)
 
 
 Vec3 = tuple[float, float, float]
@@ -77,15 +89,22 @@ class ServoPwm:
     pwm_us: F64Array  # (16,)
 
 
+def _imu_temperature_c(t_c: float) -> float:
+    lo, hi = IMU_TEMPERATURE_RANGE_C
+    return t_c if lo <= t_c <= hi else UNKNOWN_TEMPERATURE_C  # NaN fails the comparison too
+
+
 def from_highres_imu(m: MavlinkMessage) -> ImuSample:
     mag = None
     if m.fields_updated & HIGHRES_MAG_BITS == HIGHRES_MAG_BITS:
         mag = (m.xmag * GAUSS_TO_UT, m.ymag * GAUSS_TO_UT, m.zmag * GAUSS_TO_UT)
+        if not all(math.isfinite(v) for v in mag):
+            mag = None
     return ImuSample(
         t_s=m.time_usec * 1e-6,
         gyro_b_rad_s=(m.xgyro, m.ygyro, m.zgyro),
         accel_b_m_s2=(m.xacc, m.yacc, m.zacc),
-        temperature_c=float(m.temperature),
+        temperature_c=_imu_temperature_c(float(m.temperature)),
         mag_b_ut=mag,
     )
 
@@ -102,18 +121,26 @@ def from_scaled_imu(m: MavlinkMessage) -> ImuSample:
 
 
 def from_scaled_pressure(m: MavlinkMessage) -> BaroPitotSample:
-    """SCALED_PRESSURE: hPa and cdegC. A differential pressure of exactly 0 hPa means no sensor."""
+    """SCALED_PRESSURE: hPa and cdegC. A differential pressure of exactly 0 hPa (or not finite) means no
+    sensor. ValueError for a static pressure outside :data:`STATIC_PA_RANGE` (module docstring)."""
+    static_pa = m.press_abs * HPA_TO_PA
+    lo, hi = STATIC_PA_RANGE
+    if not lo <= static_pa <= hi:
+        raise ValueError(f"SCALED_PRESSURE press_abs {m.press_abs:g} hPa is not a static pressure "
+                         f"({lo / HPA_TO_PA:g}..{hi / HPA_TO_PA:g} hPa)")  # fmt: skip
+    dp_pa = m.press_diff * HPA_TO_PA
     return BaroPitotSample(
         t_s=m.time_boot_ms * 1e-3,
-        static_pa=m.press_abs * HPA_TO_PA,
-        pitot_dp_pa=m.press_diff * HPA_TO_PA if m.press_diff != 0.0 else math.nan,
+        static_pa=static_pa,
+        pitot_dp_pa=dp_pa if dp_pa != 0.0 and math.isfinite(dp_pa) else math.nan,
         temperature_c=m.temperature * 0.01,
     )
 
 
 def from_gps_raw_int(m: MavlinkMessage) -> GnssFix | None:
-    """GPS_RAW_INT with a 3-D fix: degE7, mm, cm/s, cdeg, mm (accuracies). None without a 3-D fix."""
-    if m.fix_type < 3:
+    """GPS_RAW_INT with a 3-D fix: degE7, mm, cm/s, cdeg, mm (accuracies). None without a 3-D fix, and for
+    a position off the globe (int32 degE7 reaches ±214°)."""
+    if m.fix_type < 3 or abs(m.lat) > MAX_LAT_DEG_E7 or abs(m.lon) > MAX_LON_DEG_E7:
         return None
     speed = m.vel * 0.01 if m.vel != UINT16_UNKNOWN else math.nan
     course = math.radians(m.cog * 0.01) if m.cog != UINT16_UNKNOWN else math.nan

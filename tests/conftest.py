@@ -3,10 +3,31 @@ side of calibration and navigation), built once per session."""
 
 from __future__ import annotations
 
+import os
+import pickle
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import pytest
+
+
+def once_per_session(tmp_path_factory: pytest.TempPathFactory, name: str, build: Callable[[Path], Any]) -> Any:
+    """``build(directory)`` once per test session, also when pytest-xdist runs it in several workers: the
+    first worker builds under a file lock in the session's shared temporary directory, the others read its
+    pickled result (the pattern pytest-xdist documents for session fixtures)."""
+    if "PYTEST_XDIST_WORKER" not in os.environ:
+        return build(tmp_path_factory.mktemp(name))
+    from filelock import FileLock
+
+    shared = tmp_path_factory.getbasetemp().parent  # this session's, common to its workers
+    cache = shared / f"{name}.pickle"
+    with FileLock(str(shared / f"{name}.lock")):
+        if cache.is_file():
+            return pickle.loads(cache.read_bytes())
+        result = build(shared / name)
+        cache.write_bytes(pickle.dumps(result))
+        return result
 
 
 @pytest.fixture(scope="session")
@@ -14,7 +35,12 @@ def design_deim12(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     """``uav-envelope`` simulated and DEIM fitted on 12 ports (training cases): {"data", "model"}."""
     from vdm_aero_cli.replay_golden import build_design_models
 
-    return build_design_models(tmp_path_factory.mktemp("design"))
+    def build(root: Path) -> dict[str, Path]:
+        root.mkdir(parents=True, exist_ok=True)
+        return build_design_models(root)
+
+    result: dict[str, Path] = once_per_session(tmp_path_factory, "design", build)
+    return result
 
 
 PORT_FREE_AND_DEIM_MODES = ("ins", "airspeed-dr", "ports-airdata", "vdm-classic", "vdm-deim")
@@ -34,11 +60,16 @@ def survey_service_run(design_deim12: dict[str, Path], tmp_path_factory: pytest.
     run = ServiceRun(design_deim12["data"], design_deim12["model"], None, mode="vdm-deim", scenario="survey",
                      seed=1, outage_s=60.0, speed=4.0)  # fmt: skip
     mag = site_mag_field_ut(run)
-    # the benchmark (CPU-bound, ~35 s) runs on the second core while the service flies in real time ×4
-    with ProcessPoolExecutor(1, mp_context=get_context("spawn")) as ex:
-        ref = ex.submit(bench_reference, run, PORT_FREE_AND_DEIM_MODES)
-        res = run_service_sitl(run, tmp_path_factory.mktemp("survey-service") / "direct", mag_field_ned_ut=mag)
-        return {"run": run, "res": res, "mag_field_ned_ut": mag, "ref": ref.result()}
+
+    def build(root: Path) -> dict[str, Any]:
+        # the benchmark (CPU-bound, ~35 s) runs on the second core while the service flies in real time ×4
+        with ProcessPoolExecutor(1, mp_context=get_context("spawn")) as ex:
+            ref = ex.submit(bench_reference, run, PORT_FREE_AND_DEIM_MODES)
+            res = run_service_sitl(run, root / "direct", mag_field_ned_ut=mag)
+            return {"run": run, "res": res, "mag_field_ned_ut": mag, "ref": ref.result()}
+
+    result: dict[str, Any] = once_per_session(tmp_path_factory, "survey-service", build)
+    return result
 
 
 SHARED_LOGS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "logs"

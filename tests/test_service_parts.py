@@ -4,6 +4,7 @@ port frames, IMU increments, the autopilot clock, the config's one-line errors, 
 
 from __future__ import annotations
 
+import contextlib
 import math
 import socket
 import subprocess
@@ -349,6 +350,56 @@ def test_serial_link_on_a_pseudo_terminal() -> None:
         os.close(slave)
 
 
+def test_serial_device_that_disappears_and_comes_back_is_reopened(tmp_path: Path) -> None:
+    """A USB serial adapter unplugged and plugged in again: the stable name (a udev symlink, as
+    /dev/serial/by-id/...) points at a new device; the transport notices, backs off and reopens it."""
+    import os
+    import time
+    import tty
+
+    from firmware_bridge.transport import open_transport
+
+    link = tmp_path / "ttyFC"
+
+    def plug() -> tuple[int, int]:
+        master, slave = os.openpty()
+        tty.setraw(slave)
+        link.unlink(missing_ok=True)
+        link.symlink_to(os.ttyname(slave))
+        return master, slave
+
+    master, slave = plug()
+    t = open_transport(f"serial://{link}:921600")
+    try:
+        t.send(b"one")
+        assert os.read(master, 64) == b"one"
+        os.close(master)  # unplugged: the device's other end is gone
+        os.close(slave)
+        link.unlink()
+        end = time.monotonic() + 2.0
+        while t.connected and time.monotonic() < end:
+            t.recv(0.05)
+        assert not t.connected
+        t.send(b"lost")  # nothing to send to: counted, not raised
+        assert t.dropped_sends >= 1
+        master, slave = plug()  # plugged in again, under the same name
+        end = time.monotonic() + 10.0  # the backoff is at most 8 s
+        got = b""
+        os.write(master, b"back")
+        while got != b"back" and time.monotonic() < end:
+            got += t.recv(0.1)
+            if not got and t.connected:
+                os.write(master, b"back")
+        assert got.endswith(b"back") and t.connected and t.reconnects == 1
+        t.send(b"two")
+        assert os.read(master, 64) == b"two"
+    finally:
+        t.close()
+        for fd in (master, slave):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+
+
 class _Loopback:
     """A transport that hands back what it is given to ``recv`` (for the codec tests)."""
 
@@ -407,4 +458,48 @@ def test_navigation_log_is_rotated(tmp_path: Path) -> None:
     assert files == ["nav.csv", "nav.csv.1", "nav.csv.2"]  # older ones dropped, never grown without bound
     assert all(p.stat().st_size <= 2000 for p in tmp_path.iterdir())
     assert (tmp_path / "nav.csv").read_text().splitlines()[-1] == "199,1.5,aided,vdm-deim"
-    assert NAV_LOG_COLUMNS.count(",") == 18
+    assert NAV_LOG_COLUMNS.count(",") == 20
+
+
+def test_udp_replies_go_to_the_last_sender_whose_frames_were_accepted(tmp_path: Path) -> None:
+    """udpin replies to its peer; garbage or a rogue's unsigned frames (signing required) never move it."""
+    import time
+
+    from firmware_bridge.endpoint import MavEndpoint, load_signing_key
+    from firmware_bridge.transport import open_transport
+
+    key_file = tmp_path / "key"
+    key_file.write_text("cd" * 32)
+    key = load_signing_key(key_file, require=True)
+    t = open_transport("udpin://127.0.0.1:0")
+    port = t.local_address[1]
+    ep = MavEndpoint(t, system_id=1, component_id=191, signing=key)
+    signer = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    signer.signing.secret_key, signer.signing.sign_outgoing = key.key, True
+    signer.signing.timestamp = int((time.time() - 1420070400) * 100_000)
+    rogue_mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    with (
+        socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as ap,
+        socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as rogue,
+    ):
+        ap.settimeout(1.0)
+        rogue.settimeout(0.3)
+
+        def poll_all() -> list[object]:
+            out: list[object] = []
+            end = time.monotonic() + 0.5
+            while time.monotonic() < end:
+                out += ep.poll(0.05)
+            return out
+
+        rogue.sendto(b"\xfd\x09garbage-that-is-not-a-frame", ("127.0.0.1", port))
+        assert poll_all() == [] and not t.connected  # garbage names no peer
+        ap.sendto(signer.heartbeat_encode(1, 3, 0, 0, 4).pack(signer), ("127.0.0.1", port))
+        assert len(poll_all()) == 1 and t.connected
+        rogue.sendto(rogue_mav.heartbeat_encode(1, 3, 0, 0, 4).pack(rogue_mav), ("127.0.0.1", port))
+        assert poll_all() == [] and ep.rejected_unsigned == 1
+        ep.send(ep.mav.heartbeat_encode(18, 8, 0, 0, 4))
+        assert len(ap.recv(512)) > 0  # the reply went to the autopilot
+        with pytest.raises(TimeoutError):
+            rogue.recv(512)
+    t.close()

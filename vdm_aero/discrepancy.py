@@ -49,6 +49,7 @@ MIN_ABSOLUTE_GAIN = 0.1  # ... and cut it by ≥ 10 % of the noise floor J_floor
 MIN_INCLUSION = 0.5  # ... and win in ≥ 50 % of the bootstrap resamples
 PARSIMONY_TOL = 0.01  # gains within 1 % (of the remaining explainable J) are a tie: fewer parameters win
 MIN_EXPLAINED_SHARE = 0.5  # named effects must explain ≥ 50 % of the explainable J, else "unexplained"
+PROBES = 16  # Sobol points probed for the second start of a multi-parameter fit
 MAX_EFFECTS = 8  # every library effect could be named: the rules, not a count, end the rounds
 BOOTSTRAP_SAMPLES = 200
 BOOTSTRAP_BLOCK = 16  # samples per bootstrap block (keeps the within-cycle correlation)
@@ -145,6 +146,7 @@ class Discovery:
         candidates: CandidateSource,
         seed: int = 0,
         progress: Callable[[str], None] | None = None,
+        max_effects: int = MAX_EFFECTS,
     ) -> None:
         if not train or not heldout or set(train) & set(heldout):
             raise ValueError("training and held-out cases must be non-empty and disjoint")
@@ -155,6 +157,8 @@ class Discovery:
         self.base_effects = {k: dict(v) for k, v in base_effects.items()}
         self.candidates = candidates if callable(candidates) else list(candidates)
         self.rng = np.random.default_rng(seed)
+        self.probe_rng = np.random.default_rng([seed, 1])  # the fits' start probes: apart from the bootstrap's
+        self.max_effects = max_effects  # fewer only for a first look (`demo --quick`): the rules end the rounds
         self.progress = progress or (lambda _msg: None)
         self.meas_lcm = {cid: _lcm(c.coeffs, c.alpha) for cid, c in self.cases.items()}
         tr_cp = np.concatenate([self.cases[c].cp for c in self.train])
@@ -226,51 +230,81 @@ class Discovery:
         }
 
     # ------------------------------------------------------------------------------------- hot spots
-    def hotspots(self, effects: Effects, cases: Sequence[int], top: int = 12) -> list[dict[str, Any]]:
+    def hotspots(self, effects: Effects, cases: Sequence[int], top: int | None = 12) -> list[dict[str, Any]]:
         """Where the residual lives: by port, surface region, α bin × stroke, and case (reduced frequency).
 
         ``share`` is the fraction of that kind's residual energy; ``concentration`` = share ÷ the share a
-        uniform spread would give (so a hot spot among many small bins ranks above a broad one)."""
+        uniform spread would give (so a hot spot among many small bins ranks above a broad one); ``rms`` is
+        the gap there in absolute terms: RMS Cp residual of the spot's ports, and for α bins and cases also
+        the RMS C_L, C_D, C_m residual of the spot's samples. ``top=None`` returns every spot."""
         res = self.residuals(effects, cases)
         energy = self.sample_energy(res)
         spots: list[dict[str, Any]] = []
 
-        def add(kind: str, labels: list[str], values: F64Array) -> None:
+        def add(kind: str, labels: list[str], values: F64Array, rms: list[dict[str, float]]) -> None:
             tot = float(values.sum())
             if tot <= 0:
                 return
-            for lab, v in zip(labels, values, strict=True):
+            for lab, v, r in zip(labels, values, rms, strict=True):
                 share = float(v / tot)
-                spots.append({"kind": kind, "label": lab, "share": share, "concentration": share * len(values)})
+                spots.append(
+                    {"kind": kind, "label": lab, "share": share, "concentration": share * len(values), "rms": r}
+                )
+
+        def rms_of(rcp_s: F64Array, rc_s: F64Array | None) -> dict[str, float]:
+            out = {"Cp": float(np.sqrt(np.mean(rcp_s**2)))}
+            if rc_s is not None:
+                out |= {n: float(np.sqrt(np.mean(rc_s[:, i] ** 2))) for i, n in enumerate(COEFFS)}
+            return out
 
         rcp = np.concatenate([res[c][0] for c in cases])
-        add("port", [p.name for p in self.ports], np.sum(rcp**2, axis=0))
+        rc = np.concatenate([res[c][1] for c in cases])
+        add("port", [p.name for p in self.ports], np.sum(rcp**2, axis=0), [rms_of(rcp[:, i], None) for i in
+                                                                            range(len(self.ports))])  # fmt: skip
         regions: dict[str, list[int]] = {}
         for i, p in enumerate(self.ports):
             zone = "leading edge" if p.x_c < 0.1 else ("mid chord" if p.x_c < 0.6 else "aft")
             regions.setdefault(f"{'upper' if p.upper else 'lower'} {zone}", []).append(i)
         e_port = np.sum(rcp**2, axis=0)
-        add("region", list(regions), np.array([e_port[idx].sum() / len(idx) for idx in regions.values()]))
+        add(
+            "region",
+            list(regions),
+            np.array([e_port[idx].sum() / len(idx) for idx in regions.values()]),
+            [rms_of(rcp[:, idx], None) for idx in regions.values()],
+        )
         alpha = np.concatenate([self.cases[c].alpha for c in cases])
         upstroke = np.concatenate([np.gradient(self.cases[c].alpha) > 0 for c in cases])
         e_all = np.concatenate([energy[c] for c in cases])
         a_deg = np.degrees(alpha)
         edges = np.arange(math.floor(a_deg.min() / 2) * 2, a_deg.max() + 2.0, 2.0)
-        labels, vals = [], []
+        labels, vals, rmss = [], [], []
         for lo in edges[:-1]:
             for up, name in ((True, "upstroke"), (False, "downstroke")):
                 m = (a_deg >= lo) & (a_deg < lo + 2) & (upstroke == up)
                 if m.any():
                     labels.append(f"α {lo:.0f}–{lo + 2:.0f}° {name}")
                     vals.append(e_all[m].sum() / max(1, m.sum()) * m.sum())
-        add("alpha", labels, np.array(vals))
+                    rmss.append(rms_of(rcp[m], rc[m]))
+        add("alpha", labels, np.array(vals), rmss)
         add(
             "case",
             [f"case {c} (k = {self.cases[c].reduced_frequency:.3f})" for c in cases],
             np.array([energy[c].sum() for c in cases]),
+            [rms_of(res[c][0], res[c][1]) for c in cases],
         )
         spots.sort(key=lambda s: -s["concentration"] * s["share"])
-        return spots[:top]
+        return spots if top is None else spots[:top]
+
+    def remaining_gap(
+        self, before: Effects, after: Effects, cases: Sequence[int], top: int = 12
+    ) -> list[dict[str, Any]]:
+        """The ``top`` hot spots of ``before`` with their absolute gap (``rms``) before and after ``after``."""
+        after_by = {(s["kind"], s["label"]): s["rms"] for s in self.hotspots(after, cases, top=None)}
+        return [
+            {"kind": s["kind"], "label": s["label"], "share_before": s["share"], "rms_before": s["rms"],
+             "rms_after": after_by.get((s["kind"], s["label"]), {})}
+            for s in self.hotspots(before, cases, top=top)
+        ]  # fmt: skip
 
     # --------------------------------------------------------------------------------------- fitting
     def _with(self, effects: Effects, name: str, params: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
@@ -305,7 +339,15 @@ class Discovery:
             eff = self._with(current, cand.name, dict(zip(names, map(float, x), strict=True)))
             return self._vector(self.residuals(eff, self.train))
 
-        starts = [x0] if len(names) == 1 else [x0, 0.5 * (lo + hi)]
+        starts = [x0]
+        if len(names) > 1:
+            # a second start from the best of a scrambled Sobol probe of the box (and its centre): coupled
+            # parameters (a vortex's onset, travel and decay times) have local minima a start at the
+            # defaults alone does not leave
+            from scipy.stats import qmc
+
+            probe = [0.5 * (lo + hi), *(lo + (hi - lo) * qmc.Sobol(len(names), seed=self.probe_rng).random(PROBES))]
+            starts.append(min(probe, key=lambda p: float(np.sum(fun(p) ** 2))))
         sols = [
             least_squares(fun, s0, bounds=(lo, hi), x_scale=hi - lo, diff_step=1e-3, max_nfev=60, xtol=1e-5)
             for s0 in starts
@@ -399,7 +441,7 @@ class Discovery:
         chosen: list[Fit] = []
         inclusion: dict[str, float] = {}
         named: list[str] = []
-        for rnd in range(MAX_EFFECTS):
+        for rnd in range(self.max_effects):
             remaining = self.candidates_for(current, named)
             remaining_j = ref_j - floor
             if rnd > 0 and remaining_j < MIN_REMAINING * floor:

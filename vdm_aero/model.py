@@ -3,7 +3,10 @@
 A model directory holds ``model.yaml`` (ports, reference geometry, method, training summary and
 metrics, sha256 of every other file), ``deim.npz`` (the linear DEIM force model) and optionally
 ``correction.onnx`` (the correction net). Loading verifies versions, shapes and hashes and refuses a
-tampered or incompatible model with one clear line. Run time needs numpy and onnxruntime only.
+tampered or incompatible model with one clear line: a file that matches its hash but is damaged anyway
+(the hashes re-written over it) is refused by its content: not an archive, arrays of the wrong kind,
+shape or with non-finite values, a reference geometry that is not positive, duplicate port names. Run
+time needs numpy and onnxruntime only.
 
 Prediction: C = M_s·Cp_s + M_0 (+ net(Cp_s)), body-axis ``[CX, CY, CZ, Croll, Cpitch, Cyaw]``.
 Missing ports (NaN) are filled from the gappy least-squares reconstruction of the pressure field
@@ -17,6 +20,8 @@ import hashlib
 import math
 import shutil
 import tempfile
+import zipfile
+import zlib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -232,8 +237,12 @@ class AeroModel:
             with np.load(root / DEIM_FILE, allow_pickle=False) as z:
                 arrays = {k: np.asarray(z[k]) for k in _DEIM_ARRAYS}
                 prior = {k: np.asarray(z[k]) for k in _PRIOR_ARRAYS if k in z.files}
-        except (KeyError, ValueError, OSError) as e:
-            raise ModelError(f"{root / DEIM_FILE}: unreadable or incomplete ({e})") from None
+        except (KeyError, ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error) as e:
+            reason = " ".join(str(e).split()) or type(e).__name__
+            raise ModelError(f"{root / DEIM_FILE}: unreadable or incomplete ({reason})") from None
+        for k, a in {**arrays, **prior}.items():
+            if a.dtype.kind not in "fiu" or not np.isfinite(a).all():
+                raise ModelError(f"{root / DEIM_FILE}: {k} holds {a.dtype} values that are not all finite numbers")
         n_s, n_b = arrays["Us"].shape if arrays["Us"].ndim == 2 else (-1, -1)
         shapes_ok = (
             n_s > 0
@@ -249,19 +258,30 @@ class AeroModel:
         ref = meta.get("reference", {})
         try:
             reference = Reference(float(ref["area_m2"]), float(ref["chord_m"]), float(ref["span_m"]))
-        except (KeyError, TypeError, ValueError):
+        except (KeyError, TypeError, ValueError, OverflowError):
             raise ModelError(f"{root / 'model.yaml'}: reference: needs area_m2, chord_m, span_m") from None
+        if not all(math.isfinite(v) and v > 0.0 for v in (reference.area_m2, reference.chord_m, reference.span_m)):
+            raise ModelError(f"{root / 'model.yaml'}: reference: area_m2, chord_m, span_m must be positive")
         mode_std = prior.get("mode_std")
         if mode_std is not None and mode_std.shape != (n_b,):
             raise ModelError(f"{root / DEIM_FILE}: mode_std has shape {mode_std.shape}, expected ({n_b},)")
-        linear = LinearModel(
-            Us=arrays["Us"].astype(np.float64),
-            mean_s=arrays["mean_s"].astype(np.float64),
-            SU=arrays["SU"].astype(np.float64),
-            Smean=arrays["Smean"].astype(np.float64),
-            mode_std=None if mode_std is None else mode_std.astype(np.float64),
-            tail_var=float(prior["tail_var"]) if "tail_var" in prior else 0.0,
-        )
+        tail_var = prior.get("tail_var", np.float64(0.0))
+        if tail_var.shape != () or tail_var < 0.0 or (mode_std is not None and np.any(mode_std < 0.0)):
+            raise ModelError(f"{root / DEIM_FILE}: tail_var must be one number ≥ 0 and mode_std ≥ 0")
+        with np.errstate(all="ignore"):  # overflow is checked below
+            try:
+                linear = LinearModel(
+                    Us=arrays["Us"].astype(np.float64),
+                    mean_s=arrays["mean_s"].astype(np.float64),
+                    SU=arrays["SU"].astype(np.float64),
+                    Smean=arrays["Smean"].astype(np.float64),
+                    mode_std=None if mode_std is None else mode_std.astype(np.float64),
+                    tail_var=float(tail_var),
+                )
+            except np.linalg.LinAlgError:
+                raise ModelError(f"{root / DEIM_FILE}: the port basis Us cannot be inverted") from None
+        if not (np.isfinite(linear.Ms).all() and np.isfinite(linear.M0).all()):
+            raise ModelError(f"{root / DEIM_FILE}: the force operator overflows (values out of any physical range)")
         net = root / NET_FILE if NET_FILE in files else None
         return cls(linear=linear, ports=ports, reference=reference, meta=meta, net_path=net, path=root)
 
@@ -269,10 +289,12 @@ class AeroModel:
 def read_model_yaml(root: Path) -> dict[str, Any]:
     p = root / "model.yaml"
     try:
-        meta = yaml.safe_load(p.read_text())
+        meta = yaml.safe_load(p.read_bytes().decode("utf-8"))
     except OSError:
         raise ModelError(f"{p}: missing (not a vdm-aero model directory)") from None
-    except yaml.YAMLError:
+    except UnicodeDecodeError:
+        raise ModelError(f"{p}: not UTF-8 text") from None
+    except (yaml.YAMLError, ValueError, RecursionError):  # ValueError: a number beyond 4300 digits, a bad date
         raise ModelError(f"{p}: YAML syntax error") from None
     if not isinstance(meta, dict):
         raise ModelError(f"{p}: expected a mapping")
@@ -293,8 +315,12 @@ def _parse_ports(meta: Mapping[str, Any], root: Path) -> tuple[Port, ...]:
             if len(pt) != 3 or len(nb) != 3 or not all(map(math.isfinite, pt + nb)):
                 raise ValueError
             out.append(Port(str(p["name"]), (pt[0], pt[1], pt[2]), (nb[0], nb[1], nb[2])))
-        except (KeyError, TypeError, ValueError):
+        except (KeyError, TypeError, ValueError, OverflowError):
             raise ModelError(f"{root / 'model.yaml'}: ports[{i}]: needs name, point_b [3], normal_b [3]") from None
+    names = [p.name for p in out]
+    if len(set(names)) != len(names):
+        dup = next(n for n in names if names.count(n) > 1)
+        raise ModelError(f"{root / 'model.yaml'}: ports: {dup!r} is listed twice")
     return tuple(out)
 
 

@@ -50,6 +50,7 @@ GRIDS: dict[str, tuple[NetConfig, ...]] = {
         NetConfig(h, w, wd) for h, w, wd in itertools.product((2, 3, 4), (10, 20, 30, 40), (1e-5, 1e-6, 1e-7))
     ),
     "quick": (NetConfig(2, 20, 1e-6), NetConfig(3, 40, 1e-6)),
+    "single": (NetConfig(3, 40, 1e-6),),  # `demo --quick`: a first look, no search
 }
 
 
@@ -174,7 +175,8 @@ def train_one(
             best_state = {k: t.detach().clone() for k, t in net.state_dict().items()}
         elif epoch - best_epoch >= PATIENCE_EPOCHS:
             break
-    assert best_state is not None
+    if best_state is None:  # every validation loss was NaN: no validation samples, or non-finite ones
+        raise ValueError(f"the validation loss is not finite ({len(x_val)} validation samples): nothing to select on")
     net.load_state_dict(best_state)
     net.eval()
     with torch.no_grad():

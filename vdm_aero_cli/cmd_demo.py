@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 import os
+import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -11,6 +13,7 @@ import numpy as np
 
 from vdm_aero.coefficients import lift_drag
 from vdm_aero.dataset import Dataset, load_dataset
+from vdm_aero.discrepancy import MAX_EFFECTS
 from vdm_aero_cli.plots import plot_dataset
 
 
@@ -26,7 +29,73 @@ def register(sub: Any) -> None:
         "against the mock autopilot as separate processes over UDP.",
     )
     p.add_argument("--out", type=Path, default=Path("out/demo"), help="output directory (default out/demo)")
+    p.add_argument("--quick", action="store_true",
+                   help="a first look in about a minute: every stage, each at reduced size (one sensor count, "
+                   "short training, two discovery rounds, shorter flights, one seed, a 30 s outage)")  # fmt: skip
     p.set_defaults(func=run_demo)
+
+
+@dataclass(frozen=True)
+class DemoSize:
+    """How big each stage runs: ``FULL`` is the demo, ``QUICK`` the first look of ``make demo QUICK=1``."""
+
+    grid: str
+    spec_motion: dict[str, Any] | None  # overrides of the presets' motion (None: as shipped)
+    uav_points: int | None
+    airfoil_sensors: tuple[int, ...]
+    uav_sensors: tuple[int, ...]
+    max_epochs: int
+    discovery_effects: int
+    sitl_duration_s: float | None  # None: the scenario's own
+    calibration_minutes: float
+    calibration_test_s: float
+    calibration_epochs: int
+    nav_seeds: int
+    outage_s: float
+    service_speed: float
+
+
+FULL = DemoSize("quick", None, None, (5, 8, 10), (5, 10, 15), 3000, MAX_EFFECTS, None, 2.0, 90.0, 500, 3, 60.0, 4.0)
+QUICK = DemoSize("single", {"cycles": 1, "samples_per_cycle": 48}, 4000, (8,), (10,), 300, 1, 120.0, 2.0, 60.0,
+                 150, 1, 30.0, 8.0)  # fmt: skip
+
+
+def reduced_presets(size: DemoSize, out: Path) -> dict[str, str]:
+    """The presets at ``size`` (fewer cycles and samples, a coarser UAV surface) as spec files in ``out``."""
+    import yaml
+
+    from sim.presets import preset_text
+
+    if size.spec_motion is None:
+        return {}
+    out.mkdir(parents=True, exist_ok=True)
+    sources = {}
+    for name in ("naca0015-urans", "naca0015-tunnel", "uav-pitch"):
+        spec = yaml.safe_load(preset_text(name))
+        spec["motion"].update(size.spec_motion)
+        if spec["kind"] == "airframe" and size.uav_points is not None:
+            spec["surface_points"] = size.uav_points
+        path = out / f"{name}.yaml"
+        path.write_text(yaml.safe_dump(spec, sort_keys=False))
+        sources[name] = str(path)
+    return sources
+
+
+class _Stages:
+    """Numbers the demo's stages and prints each one's wall time, so a user sees where the minutes go."""
+
+    def __init__(self, total: int) -> None:
+        self.total, self.k, self.t0, self.name = total, 0, time.perf_counter(), ""
+
+    def __call__(self, name: str) -> None:
+        self.done()
+        self.k, self.name, self.t0 = self.k + 1, name, time.perf_counter()
+        print(f"\n=== stage {self.k}/{self.total}: {name}", flush=True)
+
+    def done(self) -> None:
+        if self.name:
+            print(f"=== {self.name}: {time.perf_counter() - self.t0:.0f} s", flush=True)
+            self.name = ""
 
 
 def stall_summary(ds: Dataset) -> list[tuple[str, float, float, bool, float]]:
@@ -49,9 +118,14 @@ def run_demo(args: argparse.Namespace) -> int:
     from vdm_aero_cli.paper import run_airfoil_tables
 
     out: Path = args.out
+    size = QUICK if getattr(args, "quick", False) else FULL
+    stage, t_start = _Stages(8), time.perf_counter()
+    stage("airfoil: simulate both presets, DEIM, correction net, baselines, evaluation")
     # 1-4. simulate both presets → fit DEIM (both of the method's cases, n_s = 5, 8, 10) → train the
     # correction net (quick grid) → evaluate on the held-out tunnel case, with and without noise
-    doc = run_airfoil_tables(out, sensors=[5, 8, 10], grid="quick", seed=0, max_epochs=3000, train_noise=0.0)
+    sources = reduced_presets(size, out / "specs")
+    doc = run_airfoil_tables(out, sensors=list(size.airfoil_sensors), grid=size.grid, seed=0,
+                             max_epochs=size.max_epochs, train_noise=0.0, sources=sources)  # fmt: skip
     for preset in ("naca0015-urans", "naca0015-tunnel"):
         ds = load_dataset(out / "data" / preset)
         png = out / f"{preset}.png"
@@ -66,7 +140,9 @@ def run_demo(args: argparse.Namespace) -> int:
     # 5. discrepancy workflow: what does the URANS-like simulation miss against the tunnel-like data?
     from vdm_aero_cli.discover import discover
 
-    rep = discover("naca0015-urans", out / "data" / "naca0015-tunnel", out / "discovery")
+    stage("discrepancy workflow")
+    rep = discover(sources.get("naca0015-urans", "naca0015-urans"), out / "data" / "naca0015-tunnel", out / "discovery",
+                   max_effects=size.discovery_effects)  # fmt: skip
     print("\ndiscrepancy workflow: naca0015-urans (simulation) against naca0015-tunnel (measurement)")
     if rep["unexplained"]:
         print("  unexplained: no library effect explains the gap; hot spots:")
@@ -85,7 +161,9 @@ def run_demo(args: argparse.Namespace) -> int:
     # 6. the 3-D UAV: pitching airframe, DEIM over every surface point, correction net, the method's 3-D table
     from vdm_aero_cli.paper import run_uav_tables
 
-    run_uav_tables(out / "uav", sensors=[5, 10, 15], grid="quick", seed=0, max_epochs=3000, train_noise=0.0)
+    stage("3-D UAV: simulate, DEIM, correction net, evaluation")
+    run_uav_tables(out / "uav", sensors=list(size.uav_sensors), grid=size.grid, seed=0, max_epochs=size.max_epochs,
+                   train_noise=0.0, sources=sources)  # fmt: skip
     print()
     print((out / "uav" / "tables.md").read_text())
     print(f"3-D ports and Cp snapshot: {out / 'uav' / 'uav-ns15-ports.png'}")
@@ -95,9 +173,11 @@ def run_demo(args: argparse.Namespace) -> int:
     from sim.sitl.autopilot import run_sitl
     from vdm_aero_cli.cmd_sitl import plot_flight
 
+    stage("SITL: the 6-DOF flight behind the mock autopilot")
     scenario = load_scenario("survey-wind8")
     (out / "flight").mkdir(parents=True, exist_ok=True)
-    summary = run_sitl(FlightWorld(scenario), "null", speed=float("inf"), duration_s=scenario.duration_s,
+    sitl_s = size.sitl_duration_s or scenario.duration_s
+    summary = run_sitl(FlightWorld(scenario), "null", speed=float("inf"), duration_s=sitl_s,
                        truth=out / "flight" / "truth.npz", tlog=out / "flight" / "flight.tlog")  # fmt: skip
     plot_flight(out / "flight" / "truth.npz", out / "flight" / "trajectory.png")
     print(f"\nSITL: flew {scenario.name} for {summary['world_time_s']:.0f} s of world time in "
@@ -107,8 +187,10 @@ def run_demo(args: argparse.Namespace) -> int:
     #    (2 minutes of manoeuvres, 90 s of each test flight; `vdm-aero calibration-study` runs the full one)
     from vdm_aero_cli.calibration_study import run_study
 
-    run_study(out / "calibration", n_sensors=12, calibration_minutes=(2.0,), test_duration_s=90.0, grid="quick",
-              seed=0, max_epochs=500)  # fmt: skip
+    stage("as-built aircraft and in-flight calibration")
+    run_study(out / "calibration", n_sensors=12, calibration_minutes=(size.calibration_minutes,),
+              test_duration_s=size.calibration_test_s, grid=size.grid, seed=0,
+              max_epochs=size.calibration_epochs)  # fmt: skip
     print("\nas-built aircraft and in-flight calibration (short run):")
     print((out / "calibration" / "calibration.md").read_text())
     # 9. navigation through a GNSS outage: every mode on the same sensor streams, 3 seeds of the survey with
@@ -116,12 +198,13 @@ def run_demo(args: argparse.Namespace) -> int:
     from vdm_aero.nav.filter import MODES
     from vdm_aero_cli.nav_bench import BenchSpec, NavArtifacts, run_nav_drift, write_report
 
-    art = NavArtifacts.under(out / "calibration", calibration_minutes=2.0)
-    spec = BenchSpec(scenarios=("survey",), seeds=3, outages_s=(60.0,), modes=tuple(MODES))
+    stage("navigation: every mode through a GNSS outage")
+    art = NavArtifacts.under(out / "calibration", calibration_minutes=size.calibration_minutes)
+    spec = BenchSpec(scenarios=("survey",), seeds=size.nav_seeds, outages_s=(size.outage_s,), modes=tuple(MODES))
     paths = write_report(run_nav_drift(spec, art), out / "navigation")
-    print("\nnavigation through a 60 s GNSS outage (survey, 3 seeds):")
+    print(f"\nnavigation through a {size.outage_s:g} s GNSS outage (survey, {size.nav_seeds} seed(s)):")
     print(paths["markdown"].read_text())
-    print(f"error vs time: {paths['nav-drift-survey-60s']}")
+    print(f"error vs time: {paths[f'nav-drift-survey-{size.outage_s:g}s']}")
     # 10. the product: `vdm-aero serve` and the mock autopilot as separate processes over UDP loopback, the same
     #     survey flight (seed 0) with its GNSS outage in the world's receiver; scored against the truth and the
     #     in-process benchmark figure of step 9 for the same seed
@@ -134,10 +217,19 @@ def run_demo(args: argparse.Namespace) -> int:
         write_service_report,
     )
 
-    run = ServiceRun(art.dataset_dir, art.deim_dir, art.nn_dir, seed=0, outage_s=60.0, speed=4.0)
-    print("\nthe companion service against the mock autopilot (separate processes, UDP loopback, 4x real time):")
-    res = run_service_sitl(run, out / "service" / "run", mag_field_ned_ut=site_mag_field_ut(run))
-    score, ref = score_service(res), bench_reference(run)
+    stage("the companion service against the mock autopilot")
+    run = ServiceRun(art.dataset_dir, art.deim_dir, art.nn_dir, seed=0, outage_s=size.outage_s,
+                     speed=size.service_speed)  # fmt: skip
+    print(f"\nthe companion service against the mock autopilot (separate processes, UDP loopback, "
+          f"{size.service_speed:g}x real time):")  # fmt: skip
+    from concurrent.futures import ProcessPoolExecutor
+    from multiprocessing import get_context
+
+    # the in-process benchmark of the same flight (CPU-bound) runs on the second core while the service flies
+    with ProcessPoolExecutor(1, mp_context=get_context("spawn")) as ex:
+        ref_job = ex.submit(bench_reference, run)
+        res = run_service_sitl(run, out / "service" / "run", mag_field_ned_ut=site_mag_field_ut(run))
+        score, ref = score_service(res), ref_job.result()
     svc_paths = write_service_report(run, res, score, ref, out / "service")
     print(svc_paths["markdown"].read_text())
     print(f"service log {res['work'] / 'serve.log'}, navigation log {res['work'] / 'state' / 'nav.csv'}, "
@@ -147,10 +239,14 @@ def run_demo(args: argparse.Namespace) -> int:
     from vdm_aero.nav.filter import MODES as ALL_MODES
     from vdm_aero_cli.cmd_replay import replay
 
+    stage("log replay of the service's flight")
     a, b = res["outage"]
     replay(res["tlog"], model=art.nn_dir, design_data=art.dataset_dir, vehicle="uav-2m", outages=[(a, b)],
            modes=tuple(ALL_MODES), truth=res["work"] / "truth.npz", mag_field_ned_ut=np.asarray(site_mag_field_ut(run)),
            out=out / "replay", jobs=os.cpu_count() or 1)  # fmt: skip
     print("\nthe same flight replayed from the mock autopilot's tlog (`vdm-aero replay`):")
     print((out / "replay" / "replay.md").read_text())
+    stage.done()
+    print(f"\ndemo{' (quick)' if size is QUICK else ''} done in {time.perf_counter() - t_start:.0f} s; everything "
+          f"is in {out}")  # fmt: skip
     return 0

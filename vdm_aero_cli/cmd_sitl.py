@@ -46,6 +46,9 @@ def register(sub: Any) -> None:
         help="a ground station records the tlog from the start (named values flow without a companion; "
         "set the streams with --stream-rate), e.g. with --connect null to write a flight log for replay",
     )
+    p.add_argument("--faults", type=Path, metavar="FILE",
+                   help="scripted link and sensor faults in autopilot time (YAML, see docs/reliability.md): link "
+                   "silence, GNSS jump/drift, stuck/NaN/missing/out-of-range ports, message floods")  # fmt: skip
     p.add_argument("--json", action="store_true", help="print the run summary as JSON")
     p.set_defaults(func=run_sitl_cmd)
 
@@ -95,7 +98,9 @@ def run_sitl_cmd(args: argparse.Namespace) -> int:
         raise UserInputError("--speed: must be a finite number ≥ 0 (0 = as fast as possible)")
     from sim.flight.world import FlightWorld
     from sim.sitl.autopilot import AutopilotOptions, run_sitl
+    from sim.sitl.faults import load_faults
 
+    faults = load_faults(args.faults) if args.faults is not None else None
     scenario = load_scenario(args.scenario) if args.scenario else _nav_scenario(args)
     duration = args.duration_s if args.duration_s is not None else scenario.duration_s
     if not duration > 0:
@@ -118,12 +123,14 @@ def run_sitl_cmd(args: argparse.Namespace) -> int:
             signing_key=key,
             require_signing=args.require_signing,
             ports_as_debug_array=args.ports_debug_array,
-            options=AutopilotOptions(gcs_recording=args.gcs_recording),
+            options=AutopilotOptions(gcs_recording=args.gcs_recording, faults=faults),
             on_ready=lambda where: print(f"mock autopilot on {where}, scenario {scenario.name}", flush=True),
         )
     except FlightEnvelopeError as e:  # the simulated aircraft crashed or lost control: an outcome, not a bug
         print(f"vdm-aero: flight ended: {e}", file=sys.stderr)
         return 1
+    if faults is not None:
+        print(f"faults applied: {json.dumps(faults.applied)}", flush=True)
     if args.json:
         print(json.dumps(summary, indent=2))
     else:
@@ -152,6 +159,8 @@ def _nav_scenario(args: argparse.Namespace) -> Any:
     if not args.outage_s > 0:
         raise UserInputError("--outage-s: must be > 0")
     duration = OUTAGE_START_S[1] + args.outage_s + AFTER_S + 5.0  # as the benchmark flies it
+    if args.duration_s is not None:  # a longer flight (a soak) gets its winds and turbulence drawn that long
+        duration = max(duration, args.duration_s + 5.0)
     sc, _, t_out = bench_scenario(args.nav_scenario, args.seed, args.ports_model, duration)
     gnss = replace(sc.gnss, outages=(TimeWindow(t_out, t_out + args.outage_s),))
     if args.ports_rate_hz is not None:

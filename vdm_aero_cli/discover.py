@@ -15,6 +15,8 @@ import yaml
 from vdm_aero.coefficients import lift_drag
 from vdm_aero.dataset import Dataset, load_dataset, to_plain
 from vdm_aero.discrepancy import (
+    COEFFS,
+    MAX_EFFECTS,
     MIN_ABSOLUTE_GAIN,
     MIN_EXPLAINED_SHARE,
     MIN_HELDOUT_GAIN,
@@ -56,7 +58,9 @@ def split_cases(ds: Dataset) -> tuple[list[int], list[int]]:
     return ids[0::2], ids[1::2]
 
 
-def discover(spec_source: str, measured_path: Path, out: Path, *, seed: int = 0) -> dict[str, Any]:
+def discover(
+    spec_source: str, measured_path: Path, out: Path, *, seed: int = 0, max_effects: int = MAX_EFFECTS
+) -> dict[str, Any]:
     """Run the whole workflow and write REPORT_DIR; returns report.json's content."""
     from sim.airfoil.replay import AirfoilReplay, candidate_source
     from vdm_aero_cli.cmd_data import load_any_spec
@@ -75,12 +79,15 @@ def discover(spec_source: str, measured_path: Path, out: Path, *, seed: int = 0)
         base_effects=replay.base_effects,
         candidates=candidate_source(replay),
         seed=seed,
+        max_effects=max_effects,
     )
     result = disc.run()
     base, final = replay.base_effects, result["final_effects"]
     gap_before, gap_after = disc.gap(base, held), disc.gap(final, held)
-    hot = disc.hotspots(base, [c.id for c in measured.cases])
-    hot_after = disc.hotspots(final, [c.id for c in measured.cases])
+    all_cases = [c.id for c in measured.cases]
+    hot = disc.hotspots(base, all_cases)
+    hot_after = disc.hotspots(final, all_cases)
+    remaining = disc.remaining_gap(base, final, all_cases)
     out.mkdir(parents=True, exist_ok=True)
     new_spec = spec.to_dict()
     new_spec["effects"] = {k: dict(v) for k, v in final.items()}
@@ -95,6 +102,7 @@ def discover(spec_source: str, measured_path: Path, out: Path, *, seed: int = 0)
         "unexplained": result["unexplained"],
         "hotspots": hot,
         "hotspots_after": hot_after,
+        "remaining_gap": remaining,
         "explained_share": result["explained_share"],
         "noise_floor_objective": result["noise_floor_objective"],
         "baseline_heldout_objective": result["baseline_heldout_objective"],
@@ -164,13 +172,18 @@ def report_markdown(r: dict[str, Any]) -> str:
     lines.append(f"| RMS port Cp | {b['cp_rms']:.4g} | {a['cp_rms']:.4g} | {_shrink(b['cp_rms'], a['cp_rms'])} |")
     lines += [
         "",
-        "## Where the disagreement lives (before; after in `report.json` → `hotspots_after`)",
+        "## Where the disagreement lived, and the gap left there",
         "",
-        "| kind | where | share | concentration |",
-        "|---|---|---|---|",
+        "The hot spots of the simulation before discovery, over all measured cases, with the RMS residual "
+        "there before and after (ports and regions: Cp; α bins and cases: C_L, C_D, C_m). The spots of the "
+        "final simulation are in `report.json` → `hotspots_after`.",
+        "",
+        "| kind | where | share before | RMS before | RMS after |",
+        "|---|---|---|---|---|",
     ]
-    for h in r["hotspots"]:
-        lines.append(f"| {h['kind']} | {h['label']} | {h['share']:.1%} | {h['concentration']:.1f} |")
+    for h in r.get("remaining_gap", []):
+        lines.append(f"| {h['kind']} | {h['label']} | {h['share_before']:.1%} | {_rms_cell(h['rms_before'])} "
+                     f"| {_rms_cell(h['rms_after'])} |")  # fmt: skip
     lines += ["", "## Candidate ranking per round", ""]
     for rnd in r["rounds"]:
         lines.append(
@@ -179,6 +192,12 @@ def report_markdown(r: dict[str, Any]) -> str:
         lines.append("")
     lines += [f"{r['simulations']} simulations, {r['seconds']} s.", "", "Plots: `residuals.png`, `loops.png`.", ""]
     return "\n".join(lines)
+
+
+def _rms_cell(rms: dict[str, float]) -> str:
+    """'C_L 0.31, C_D 0.12, C_m 0.05' for a bin, 'Cp 0.21' for a port or region."""
+    keys = [k for k in COEFFS if k in rms] or ["Cp"]
+    return ", ".join(f"{k} {rms[k]:.3g}" for k in keys if k in rms) or "–"
 
 
 def _shrink(before: float, after: float) -> str:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -94,13 +95,18 @@ def run_airfoil_tables(
     max_epochs: int,
     train_noise: float,
     quiet: bool = False,
+    sources: Mapping[str, str] | None = None,
 ) -> dict[str, Any]:
+    """``sources``: a spec file to simulate instead of a preset (e.g. a reduced one for ``demo --quick``)."""
     from vdm_aero.pipeline import fit_model, predictions
     from vdm_aero_cli.plots import plot_method_errors, plot_model_diagnostics, plot_predictions
 
     data = out / "data"
-    urans = load_dataset(simulate_to("naca0015-urans", data / "naca0015-urans", quiet=quiet))
-    tunnel = load_dataset(simulate_to("naca0015-tunnel", data / "naca0015-tunnel", quiet=quiet))
+    src = dict(sources or {})
+    urans = load_dataset(simulate_to(src.get("naca0015-urans", "naca0015-urans"), data / "naca0015-urans",
+                                     quiet=quiet))  # fmt: skip
+    tunnel = load_dataset(simulate_to(src.get("naca0015-tunnel", "naca0015-tunnel"), data / "naca0015-tunnel",
+                                      quiet=quiet))  # fmt: skip
     roles = case_roles(tunnel)
     train = {"grid": grid, "seed": seed, "max_epochs": max_epochs, "train_noise": train_noise}
     results: list[dict[str, Any]] = []
@@ -138,13 +144,15 @@ def run_uav_tables(
     max_epochs: int,
     train_noise: float,
     quiet: bool = False,
+    sources: Mapping[str, str] | None = None,
 ) -> dict[str, Any]:
     """The method's 3-D case: DEIM on the simulated pitching UAV (every surface point a candidate), the
     net trained on the training frequencies, selected on the validation one, evaluated on the test one."""
     from vdm_aero.pipeline import fit_model, predictions
     from vdm_aero_cli.plots import plot_method_errors, plot_ports_3d, plot_predictions
 
-    ds = load_dataset(simulate_to("uav-pitch", out / "data" / "uav-pitch", quiet=quiet))
+    ds = load_dataset(simulate_to(dict(sources or {}).get("uav-pitch", "uav-pitch"), out / "data" / "uav-pitch",
+                                  quiet=quiet))  # fmt: skip
     roles = case_roles(ds)
     train = {"grid": grid, "seed": seed, "max_epochs": max_epochs, "train_noise": train_noise}
     results: list[dict[str, Any]] = []

@@ -102,11 +102,18 @@ def _terminate(proc: subprocess.Popen[bytes], timeout_s: float = 20.0) -> int:
         return proc.wait()
 
 
-def start_service(config: Path, work: Path, *, env: dict[str, str] | None = None) -> subprocess.Popen[bytes]:
+# no capabilities, none to gain (what the unit's User=vdm-aero and NoNewPrivileges=yes give on the aircraft)
+UNPRIVILEGED = ("setpriv", "--no-new-privs", "--inh-caps=-all", "--ambient-caps=-all", "--bounding-set=-all", "--")
+
+
+def start_service(config: Path, work: Path, *, env: dict[str, str] | None = None,
+                  unprivileged: bool = False) -> subprocess.Popen[bytes]:  # fmt: skip
     log = open(work / "serve.log", "ab")  # noqa: SIM115 - the child owns it for its lifetime
-    return subprocess.Popen([*VDM_AERO, "serve", "--config", str(config), "--summary", str(work / "summary.json")],
-                            stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
-                            env={**os.environ, **(env or {})})  # fmt: skip
+    prefix = UNPRIVILEGED if unprivileged else ()
+    cmd = [*prefix, *VDM_AERO, "serve", "--config", str(config), "--summary", str(work / "summary.json")]
+    return subprocess.Popen(
+        cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env={**os.environ, **(env or {})}
+    )
 
 
 def run_service_sitl(run: ServiceRun, work: Path, *, mag_field_ned_ut: tuple[float, float, float],

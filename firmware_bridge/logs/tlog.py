@@ -174,7 +174,11 @@ class _Reader:
         elif kind == "SCALED_IMU":
             self.scaled_imu.append(units.from_scaled_imu(m))
         elif kind == "SCALED_PRESSURE":
-            s = units.from_scaled_pressure(m)
+            try:
+                s = units.from_scaled_pressure(m)
+            except ValueError:  # an impossible static pressure (a glitched sensor): skipped and counted
+                rep.skip("SCALED_PRESSURE (static pressure out of range)")
+                return
             t = self.clock.filter_s(s.t_s)
             self.builder.baro(t, s.static_pa)
             if math.isfinite(s.pitot_dp_pa):

@@ -8,7 +8,11 @@ unless the name carries a unit suffix.
 
 References: Leishman & Beddoes (1989) J. AHS 34(3); Leishman, *Principles of Helicopter
 Aerodynamics*, 2nd ed., ch. 8–9; Theodorsen (1935) NACA Rep. 496; Hansen, Gaunaa & Madsen (2004)
-Risø-R-1354 (Øye/Beddoes separation lag).
+Risø-R-1354 (Øye/Beddoes separation lag); Sheng, Galbraith & Coton (2008) J. Sol. Energy Eng.
+130(3) 031013 and dos Santos & Marques (2021) J. Fluids Struct. 106 103375 (low-Mach revisions);
+OpenFAST AeroDyn UnsteadyAero documentation and source (T_f0, T_V0, T_p, T_VL). Each range is
+reviewed against these, with the values and the source of each, in docs/simulator.md ("Effect
+parameters and physical ranges").
 """
 
 from __future__ import annotations
@@ -78,7 +82,9 @@ _ALL = (
         {
             "alpha1_deg": ParamInfo(15.0, 10.0, 22.0, "deg", "incidence where f = 0.7 (break of the fit)"),
             "s1_deg": ParamInfo(2.5, 1.0, 6.0, "deg", "width of the separation growth below alpha1"),
-            "s2_deg": ParamInfo(3.0, 1.0, 8.0, "deg", "width of the separation growth above alpha1"),
+            "s2_deg": ParamInfo(
+                3.0, 0.7, 8.0, "deg", "width of the separation growth above alpha1 (NACA 0012, M ≤ 0.3: 0.7–2.3)"
+            ),
             "slope_factor": ParamInfo(
                 0.9, 0.75, 1.0, "-", "attached viscous lift slope / potential-flow lift slope (decambering)"
             ),
@@ -91,8 +97,21 @@ _ALL = (
         "separation, and boundary-layer lag T_f on the separation point (Øye-type first-order lag). "
         "T_f → 0 reproduces the static response.",
         {
-            "tf": ParamInfo(3.0, 1.5, 8.0, "-", "separation-point lag time constant [semichords]"),
-            "tp": ParamInfo(1.7, 0.8, 3.0, "-", "leading-edge pressure lag time constant [semichords]"),
+            "tf": ParamInfo(
+                3.0,
+                1.5,
+                12.0,
+                "-",
+                "separation-point lag time constant [semichords]; one constant for separation and "
+                "reattachment (Beddoes-type models use T_f0/2 … 4·T_f0 with T_f0 ≈ 3)",
+            ),
+            "tp": ParamInfo(
+                1.7,
+                0.8,
+                4.0,
+                "-",
+                "leading-edge pressure lag time constant [semichords] (1.7 at M = 0.3, up to 4 at low Mach)",
+            ),
         },
         requires=("trailing_edge_separation",),
     ),
@@ -104,8 +123,21 @@ _ALL = (
         "side as a Gaussian suction bump that "
         "reaches the trailing edge after tvl semichords, then decaying.",
         {
-            "cn1": ParamInfo(2.1, 1.4, 2.6, "-", "critical lagged normal force for vortex onset"),
-            "tvl": ParamInfo(8.0, 5.0, 13.0, "-", "vortex travel time to the trailing edge [semichords]"),
+            "cn1": ParamInfo(
+                2.1,
+                1.4,
+                2.6,
+                "-",
+                "critical lagged normal force for vortex onset, on the potential-flow normal force of the "
+                "panel method (NACA 0012: 1.4 ↔ 11.9°, 2.1 ↔ 18.7°, 2.6 ↔ 24.4°)",
+            ),
+            "tvl": ParamInfo(
+                8.0,
+                3.0,
+                13.0,
+                "-",
+                "vortex travel time to the trailing edge [semichords] (3.3–5 at low Mach, 6–13 AeroDyn)",
+            ),
             "tv": ParamInfo(6.0, 3.0, 10.0, "-", "vortex lift decay time constant [semichords]"),
         },
         requires=("trailing_edge_separation",),

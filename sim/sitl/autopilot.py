@@ -28,6 +28,7 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from sim.flight.contract import World, WorldTick
+from sim.sitl.faults import FaultSchedule
 from sim.sitl.link import Link, MavlinkEndpoint, MavlinkMessage, SigningConfig, open_link
 from sim.sitl.streams import (
     DEBUG_FLOAT_ARRAY_LEN,
@@ -79,6 +80,7 @@ class AutopilotOptions:
     # a ground station recording the tlog is on the link from the start (as MAVProxy logging a flight):
     # named values flow without waiting to hear from a companion, at the rates of ``stream_rates``
     gcs_recording: bool = False
+    faults: FaultSchedule | None = None  # scripted link and sensor faults (sim/sitl/faults.py)
 
 
 class RunSummary(TypedDict):
@@ -295,8 +297,15 @@ class MockAutopilot:
     def _send(self, msg: MavlinkMessage | None) -> None:
         if msg is None:
             return
-        self._endpoint.send(msg)
-        self._sent[msg.get_type()] += 1
+        faults = self._options.faults
+        copies = 1
+        if faults is not None:
+            if faults.link_silent(self._t_s):
+                return
+            copies = faults.copies(self._t_s)
+        for _ in range(copies):
+            self._endpoint.send(msg)
+        self._sent[msg.get_type()] += copies
 
     # ------------------------------------------------------------------------------------ world side
     def _process(self, tick: WorldTick, dt: float) -> None:
@@ -311,6 +320,8 @@ class MockAutopilot:
         # a fix lost is gone: after an outage GPS_RAW_INT waits for the receiver's next fix (ArduPilot's driver
         # does not report the last pre-outage fix again as if it were new)
         st.gnss = None if tick.gnss_outage else (tick.gnss or st.gnss)
+        if self._options.faults is not None and tick.gnss is not None and st.gnss is not None:
+            st.gnss = self._options.faults.gnss(tick.gnss, truth.t_s, self._frame)
         st.baro = tick.baro or st.baro
         st.mag = tick.mag or st.mag
         st.airspeed = tick.airspeed or st.airspeed
@@ -347,18 +358,27 @@ class MockAutopilot:
             self._recorder.add_ports(ports)
         if not self._active:  # ArduPilot sends named values only on links that have heard from someone
             return
-        for name, dp in zip(ports.names, ports.dp_pa, strict=True):
-            self._send(self._encoder.named_value_float(ports.t_s, name, float(dp)))
+        faults = self._options.faults
         if self._ports_as_debug_array:
             if len(ports.names) > DEBUG_FLOAT_ARRAY_LEN:
                 raise ValueError(f"{len(ports.names)} ports: DEBUG_FLOAT_ARRAY holds {DEBUG_FLOAT_ARRAY_LEN}")
+            values = ports.dp_pa if faults is None else faults.port_values(ports)
+            for name, dp in zip(ports.names, values, strict=True):
+                self._send(self._encoder.named_value_float(ports.t_s, name, float(dp)))
             self._send(
-                self._encoder.debug_float_array(ports.t_s, PORTS_ARRAY_NAME, self._options.debug_array_id, ports.dp_pa)
+                self._encoder.debug_float_array(ports.t_s, PORTS_ARRAY_NAME, self._options.debug_array_id, values)
             )
+            return
+        sent = zip(ports.names, ports.dp_pa, strict=True) if faults is None else faults.ports(ports)
+        for name, dp in sent:
+            self._send(self._encoder.named_value_float(ports.t_s, name, float(dp)))
 
     # ------------------------------------------------------------------------------------ link side
     def _service(self, timeout_s: float) -> None:
-        for msg in self._endpoint.poll(timeout_s):
+        msgs = self._endpoint.poll(timeout_s)
+        if self._options.faults is not None and self._options.faults.link_silent(self._t_s):
+            return  # the link is down both ways: what arrives is lost
+        for msg in msgs:
             self._handle(msg)
 
     def _for_me(self, target_system: int, target_component: int) -> bool:

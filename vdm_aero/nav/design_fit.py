@@ -44,9 +44,16 @@ class DesignFlightData:
             raise DatasetError(
                 f"{states_path}: missing (the navigation fits need an airframe data set's flight states)"
             )
-        states = np.load(states_path)
+        try:
+            states = np.load(states_path, allow_pickle=False)
+        except (OSError, ValueError, EOFError) as e:  # truncated or not an .npy
+            raise DatasetError(f"{states_path}: not a readable .npy array ({e})") from None
+        if not isinstance(states, np.ndarray) or states.dtype.kind not in "fiu":
+            raise DatasetError(f"{states_path}: expected a numeric array")
         if states.shape != (ds.n_snapshots, len(AIRFRAME_STATE_COLUMNS)):
             raise DatasetError(f"{states_path}: shape {states.shape}, expected ({ds.n_snapshots}, 10)")
+        if not np.all(np.isfinite(states)):
+            raise DatasetError(f"{states_path}: non-finite flight states")
         if ds.coeffs is None or ds.coeffs.shape[1] != 6:
             raise DatasetError(f"{path}: the navigation fits need six body coefficients per snapshot")
         idx = ds.point_indices(port_names)

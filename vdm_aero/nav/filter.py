@@ -30,7 +30,7 @@ from typing import Any, Final
 import numpy as np
 
 from vdm_aero._typing import BoolArray, F64Array
-from vdm_aero.atmosphere import density_kg_m3, pressure_altitude_m
+from vdm_aero.atmosphere import G0_M_S2, density_kg_m3, pressure_altitude_m
 from vdm_aero.nav.contracts import ImuIncrement, Measurement
 from vdm_aero.nav.design_fit import StabilityDerivatives
 from vdm_aero.nav.engine import EkfEngine, UpdateResult
@@ -61,6 +61,13 @@ TURBULENCE_SIGMA_BOUNDS_M_S: Final = (0.15, 4.0)  # calm air's air-data noise �
 TURBULENCE_AFTER_S: Final = 30.0  # aided time before the turbulence estimate starts (the wind has converged)
 GNSS_TIMEOUT_S: Final = 1.0
 GNSS_RESET_S: Final = 10.0
+NIS_WINDOW: Final = 1000
+PORT_STALE_S: Final = 0.5  # no port frame this long: fallback, as for frames without air data
+GAP_COAST_MAX_S: Final = 2.0  # a longer IMU gap with GNSS at hand re-initialises the pose at the next fix
+GAP_STEP_S: Final = 0.1  # coasting step through an IMU gap
+GAP_MAX_STEPS: Final = 600  # longer gaps coast in longer steps (the state is a guess by then anyway)
+GAP_ACCEL_SIGMA_M_S2: Final = 1.0  # unknown manoeuvre acceleration during a gap (1σ, white) [m/s²/√s]
+GAP_RATE_SIGMA_RAD_S: Final = 0.05  # unknown turn-rate change during a gap [rad/s/√s]
 BUFFER_S: Final = 1.0
 
 
@@ -73,6 +80,15 @@ class ModeSpec:
     ports_airdata: bool = False
     force: str | None = None  # "classic" or the name of a port aero model ("deim", "deim-nn")
     description: str = ""
+
+
+SLOW_STATES: Final = ("bg", "ba", "wind", "bm", "baro", "aero")
+"""The states that outlive a pose: kept through long IMU gaps and across service restarts."""
+
+
+def slow_index() -> np.ndarray:
+    """Error-state indices of :data:`SLOW_STATES`, in order."""
+    return np.concatenate([np.arange(IDX[k].start, IDX[k].stop) for k in SLOW_STATES])
 
 
 MODES: Final = {
@@ -214,11 +230,13 @@ class NavFilter:
         self.port_health = (0, 0)
         self.counts: dict[str, int] = {}
         self.rejected: dict[str, int] = {}
-        self.nis: dict[str, list[float]] = {}
+        self.nis: dict[str, deque[float]] = {}  # the latest NIS_WINDOW per measurement: bounded in a long flight
         self.adaptive = AdaptiveNoise()
         self.turbulence = TurbulenceIntensity()
         self._last_airdata_s = -math.inf
         self._t_init_s = math.nan
+        self._carried: tuple[F64Array, F64Array] | None = None
+        self._last_port_frame_s = -math.inf
         m = config.vehicle.mass.mass_kg
         self._area_per_mass = config.vehicle.reference.area_m2 / m
 
@@ -231,7 +249,7 @@ class NavFilter:
         out._buffer = copy.deepcopy(self._buffer, memo)
         out._next_aid = dict(self._next_aid)
         out.counts, out.rejected = dict(self.counts), dict(self.rejected)
-        out.nis = {k: list(v) for k, v in self.nis.items()}
+        out.nis = {k: deque(v, maxlen=NIS_WINDOW) for k, v in self.nis.items()}
         out.adaptive = copy.deepcopy(self.adaptive, memo)
         out.turbulence = copy.deepcopy(self.turbulence, memo)
         out.process = copy.deepcopy(self.process, memo)  # its gust intensity is the branch's own
@@ -307,10 +325,20 @@ class NavFilter:
         self.t_s = t_s
         self._t_init_s = t_s
         self._last_gnss_s = t_s
+        self._last_port_frame_s = max(self._last_port_frame_s, t_s)  # frames have PORT_STALE_S to arrive
+        if self._carried is not None:  # slow states kept through a long IMU gap
+            self.restore_slow_states(*self._carried, keep_wind=True)
+            self._carried = None
 
     # ------------------------------------------------------------------------------------ predict
     def imu(self, t_s: float, inc: ImuIncrement, temperature_c: float | None = None) -> None:
         """One IMU increment ending at ``t_s``."""
+        gap = t_s - inc.dt_s - self.t_s
+        if self.x is not None and gap > 2.0 * inc.dt_s:
+            if gap > GAP_COAST_MAX_S and not self.in_outage:
+                self._drop_pose(gap)  # GNSS will give a better pose than a long coast: start again from it
+            else:
+                self._bridge(gap)
         self.inputs.omega_b = inc.dtheta_b / inc.dt_s
         self.inputs.f_b = inc.dvel_b / inc.dt_s
         if temperature_c is not None:
@@ -324,10 +352,84 @@ class NavFilter:
         self.engine.predict(phi, qd)
         self.t_s = t_s
         self._buffer.append((t_s, x.p_ned.copy(), x.v_ned.copy()))
+        if self.uses_ports and t_s - self._last_port_frame_s > PORT_STALE_S and not self.fallback:
+            # no port frames at all (a dead transducer board, a lost script): as bad as frames without air data
+            self.fallback = True
+            self.port_health = (0, self.port_health[1])
         self._model_aiding(t_s)
         if not self.in_outage and t_s - self._last_airdata_s < 1.0 and t_s - self._t_init_s > TURBULENCE_AFTER_S:
             p = np.diag(self.engine.P)[IDX["gust"]]
             self.process.set_gust_sigma(self.turbulence.observe(x.gust_ned, p, inc.dt_s))
+
+    def _drop_pose(self, gap_s: float) -> None:
+        """An IMU gap longer than GAP_COAST_MAX_S with GNSS at hand: forget the pose (it would be a guess),
+        keep the slow states, and initialise again at the next fix as at the start."""
+        self._carried = self.slow_states()
+        self.x, self.engine = None, None
+        self._buffer.clear()
+        self.counts["imu_gaps_reinitialised"] = self.counts.get("imu_gaps_reinitialised", 0) + 1
+
+    # ------------------------------------------------------------------------------- slow states
+    def slow_states(self) -> tuple[F64Array, F64Array]:
+        """The slow states (:data:`SLOW_STATES`: biases, wind, offsets, model parameters) and their
+        covariance block, in the order of :func:`slow_index`."""
+        x = self.x
+        assert x is not None and self.engine is not None
+        values = np.concatenate([x.b_gyro_b, x.b_accel_b, x.wind_ned, x.b_mag_b_ut, [x.b_baro_m], x.aero])
+        idx = slow_index()
+        return values.astype(np.float64), self.engine.P[np.ix_(idx, idx)].copy()
+
+    def restore_slow_states(self, values: F64Array, cov: F64Array, *, keep_wind: bool) -> list[str]:
+        """Put slow states into an initialised filter, independent of its new pose; returns the names
+        restored (the wind only with ``keep_wind``: an old wind is worse than none)."""
+        assert self.x is not None and self.engine is not None
+        v = np.asarray(values, dtype=np.float64)
+        idx = slow_index()
+        x = self.x
+        x.b_gyro_b, x.b_accel_b = v[0:3].copy(), v[3:6].copy()
+        restored = ["bg", "ba", "bm", "baro", "aero"]
+        if keep_wind:
+            x.wind_ned = v[6:9].copy()
+            restored.insert(2, "wind")
+        x.b_mag_b_ut, x.b_baro_m, x.aero = v[9:12].copy(), float(v[12]), v[13:].copy()
+        p = self.engine.P
+        old = p[np.ix_(idx, idx)]
+        wind = np.isin(idx, np.arange(IDX["wind"].start, IDX["wind"].stop))
+        take = ~wind | keep_wind
+        p[np.ix_(idx, idx)] = np.where(np.outer(take, take), cov, np.where(np.outer(~take, ~take), old, 0.0))
+        others = np.setdiff1d(np.arange(p.shape[0]), idx)
+        p[np.ix_(idx, others)] = 0.0  # the restored states are independent of the new pose
+        p[np.ix_(others, idx)] = 0.0
+        self.engine.P = p
+        return restored
+
+    def _bridge(self, gap_s: float) -> None:
+        """No IMU data for ``gap_s`` (a link drop-out, an autopilot stall): coast through it at constant
+        velocity and attitude (holding the last sample's rates would turn a momentary roll rate into a
+        roll-over), and add what that cannot know — the manoeuvres flown meanwhile
+        (:data:`GAP_ACCEL_SIGMA_M_S2`, :data:`GAP_RATE_SIGMA_RAD_S`, white over the gap) — so the first
+        fix after it is judged against an honest uncertainty, not gated away."""
+        assert self.x is not None and self.engine is not None
+        n = min(max(math.ceil(gap_s / GAP_STEP_S), 1), GAP_MAX_STEPS)
+        dt = gap_s / n
+        f_level_b = dcm_from_quat(self.x.q_nb).T @ np.array([0.0, 0.0, -G0_M_S2]) + self.x.b_accel_b
+        held = ImuIncrement(self.x.b_gyro_b * dt, f_level_b * dt, dt)  # bias-corrected: ω = 0, f = −g
+        for _ in range(n):
+            self.engine.predict(self.process.transition(self.x, held), self.process.noise(self.x, held))
+            self.process.propagate_inplace(self.x, held)
+        p = self.engine.P
+        sa, sw = GAP_ACCEL_SIGMA_M_S2, GAP_RATE_SIGMA_RAD_S
+        for i in range(3):  # a random walk in velocity over the gap, integrated into position
+            iv, ip, ia = IDX["v"].start + i, IDX["p"].start + i, IDX["theta"].start + i
+            p[iv, iv] += sa**2 * gap_s
+            p[ip, ip] += sa**2 * gap_s**3 / 3.0
+            p[ip, iv] += sa**2 * gap_s**2 / 2.0
+            p[iv, ip] += sa**2 * gap_s**2 / 2.0
+            p[ia, ia] += sw**2 * gap_s
+        self.engine.P = p
+        self.t_s += gap_s
+        self._buffer.clear()  # the delayed-fix buffer holds no state from inside the gap
+        self.counts["imu_gaps"] = self.counts.get("imu_gaps", 0) + 1
 
     def _model_aiding(self, t_s: float) -> None:
         """The aiding that needs no sensor sample: synthetic sideslip and the state-based force model."""
@@ -367,7 +469,7 @@ class NavFilter:
             r = self.adaptive.covariance(model.name, r)
         dx, res = self.engine.update(y, h, r, gate, consider)
         name = model.name
-        self.nis.setdefault(name, []).append(res.nis)
+        self.nis.setdefault(name, deque(maxlen=NIS_WINDOW)).append(res.nis)
         if res.accepted:
             self.x.plus_inplace(dx)
             if state is not None:  # the buffered state takes the same correction: the next measurement of
@@ -483,11 +585,15 @@ class NavFilter:
         return ClassicForce(self.derivatives, self.inputs.omega_b.copy(), self.inputs.controls_rad.copy(), self._ctx(),
                             np.asarray(c.classic_force_sigma_m_s2))  # fmt: skip
 
+    @property
+    def uses_ports(self) -> bool:
+        return bool(self.spec.ports_airdata or (self.spec.force not in (None, "classic")))
+
     def ports(self, frame: PortFrame) -> None:
         """A processed port frame (:class:`~vdm_aero.nav.ports_frontend.PortFrame`)."""
         self.port_health = (frame.n_ok, len(frame.ok))
-        uses_ports = self.spec.ports_airdata or (self.spec.force not in (None, "classic"))
-        if not uses_ports:
+        self._last_port_frame_s = frame.t_s
+        if not self.uses_ports:
             return
         self.fallback = frame.airdata is None
         if self.x is None or frame.airdata is None or not self._due("ports", frame.t_s):
