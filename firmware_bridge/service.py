@@ -131,7 +131,7 @@ class CompanionService:
         self._last_mag: tuple[float, float, float] | None = None
         self._last_baro_ms = -1
         self._last_gps_us = -1
-        self._last_imu_us = -1
+        self._last_imu_stamp = -1  # HIGHRES_IMU time_usec or SCALED_IMU time_boot_ms: one of the two streams
         self._last_imu_in = math.nan  # local time the latest IMU sample arrived
         self._boot_now_s = -math.inf  # the autopilot's time of the latest IMU sample
         self._stream_seen: dict[str, int] = dict.fromkeys(cfg.streams, 0)
@@ -263,7 +263,7 @@ class CompanionService:
             self._print(f"vdm-aero serve: autopilot reboot (boot time {s.t_s:.1f} s); re-requesting streams")
             self.imu_int.reset()
             self._next.pop("streams", None)
-            self._last_baro_ms = self._last_gps_us = self._last_imu_us = -1
+            self._last_baro_ms = self._last_gps_us = self._last_imu_stamp = -1
         self._boot_now_s = s.t_s
         if s.mag_b_ut is not None and s.mag_b_ut != self._last_mag and self.driver is not None:
             self._last_mag = s.mag_b_ut  # HIGHRES_IMU repeats a slower magnetometer's sample: pass new ones
@@ -277,19 +277,19 @@ class CompanionService:
     def _on_highres_imu(self, msg: MavlinkMessage, t_in: float) -> None:
         if not self._from_autopilot(msg):
             return
-        if msg.time_usec == self._last_imu_us:
+        if msg.time_usec == self._last_imu_stamp:
             self.stats.duplicates += 1  # integrating a sample twice would corrupt the increments
             return
-        self._last_imu_us = msg.time_usec
+        self._last_imu_stamp = msg.time_usec
         self._imu(units.from_highres_imu(msg), t_in)
 
     def _on_scaled_imu(self, msg: MavlinkMessage, t_in: float) -> None:
         if not self._from_autopilot(msg) or "HIGHRES_IMU" in self.cfg.streams:
             return
-        if msg.time_boot_ms == self._last_imu_us:
+        if msg.time_boot_ms == self._last_imu_stamp:
             self.stats.duplicates += 1
             return
-        self._last_imu_us = msg.time_boot_ms
+        self._last_imu_stamp = msg.time_boot_ms
         self._imu(units.from_scaled_imu(msg), t_in)
 
     def _on_scaled_pressure(self, msg: MavlinkMessage, t_in: float) -> None:

@@ -315,9 +315,12 @@ def score_windows(work: Path, windows: dict[str, tuple[float, float]]) -> dict[s
 
 def nav_log_health(work: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(autopilot time [s], ports ok, health bits) of every navigation-log row."""
+    from firmware_bridge.persist import NAV_LOG_COLUMNS
+
+    col = {name: i for i, name in enumerate(NAV_LOG_COLUMNS.split(","))}
     rows = [r.split(",") for r in (work / "state" / "nav.csv").read_text().splitlines() if not r.startswith("#")]
-    t = np.array([float(r[1]) for r in rows])
-    return t, np.array([int(r[19]) for r in rows]), np.array([int(r[20]) for r in rows])
+    t = np.array([float(r[col["boot_s"]]) for r in rows])
+    return t, np.array([int(r[col["ports_ok"]]) for r in rows]), np.array([int(r[col["health"]]) for r in rows])
 
 
 def suite_flight(
