@@ -24,13 +24,37 @@ import pymap3d
 
 from vdm_aero._typing import F64Array, FloatArray
 
-__all__ = ["WGS84_A_M", "WGS84_E2", "LocalFrame"]
+__all__ = ["EARTH_RATE_RAD_S", "WGS84_A_M", "WGS84_E2", "LocalFrame", "earth_rate_ned", "normal_gravity_m_s2"]
 
 WGS84_A_M: Final = 6378137.0  # semi-major axis
 WGS84_F: Final = 1.0 / 298.257223563
 WGS84_E2: Final = WGS84_F * (2.0 - WGS84_F)  # first eccentricity squared
 _B_M: Final = WGS84_A_M * (1.0 - WGS84_F)
 _EP2: Final = (WGS84_A_M**2 - _B_M**2) / _B_M**2  # second eccentricity squared
+
+# WGS-84 (NIMA TR8350.2, 3rd ed., tables 3.1 and 3.4): Earth's rotation rate, normal gravity at the equator
+# and the pole, and the Somigliana constant k = (b·γ_p)/(a·γ_e) − 1
+EARTH_RATE_RAD_S: Final = 7.292115e-5
+WGS84_GAMMA_E_M_S2: Final = 9.7803253359
+WGS84_GAMMA_P_M_S2: Final = 9.8321849378
+WGS84_SOMIGLIANA_K: Final = 0.00193185265241
+WGS84_GM_M3_S2: Final = 3.986004418e14
+
+
+def normal_gravity_m_s2(lat_deg: float, height_m: float) -> float:
+    """WGS-84 normal gravity [m/s²] at geodetic latitude and ellipsoidal height: Somigliana's closed formula
+    on the ellipsoid (TR8350.2 eq. 4-1) and the second-order free-air reduction above it (eq. 4-3)."""
+    s2 = math.sin(math.radians(lat_deg)) ** 2
+    g0 = WGS84_GAMMA_E_M_S2 * (1.0 + WGS84_SOMIGLIANA_K * s2) / math.sqrt(1.0 - WGS84_E2 * s2)
+    m = EARTH_RATE_RAD_S**2 * WGS84_A_M**2 * _B_M / WGS84_GM_M3_S2
+    h = height_m
+    return g0 * (1.0 - 2.0 / WGS84_A_M * (1.0 + WGS84_F + m - 2.0 * WGS84_F * s2) * h + 3.0 / WGS84_A_M**2 * h * h)
+
+
+def earth_rate_ned(lat_deg: float) -> F64Array:
+    """The Earth's rotation ω_ie resolved in local NED at latitude [rad/s] (Groves 2013, eq. 2.123)."""
+    lat = math.radians(lat_deg)
+    return np.array([EARTH_RATE_RAD_S * math.cos(lat), 0.0, -EARTH_RATE_RAD_S * math.sin(lat)])
 
 
 @dataclass(frozen=True)

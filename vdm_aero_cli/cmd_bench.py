@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import statistics
+import sys
 import tempfile
 import time
 from collections.abc import Callable, Sequence
@@ -37,7 +39,13 @@ def register(sub: Any) -> None:
     p.add_argument("--seed", type=int, default=0)
     n = p.add_argument_group("nav-drift")
     n.add_argument("--scenario", default="survey", help="comma-separated: survey, wind-shear, loiter, no-airspeed, "
-                   "pitot-blocked, manoeuvring, survey-calm, or all")  # fmt: skip
+                   "pitot-blocked, pitot-icing, pitot-water, manoeuvring, survey-calm, rtl-wind-gradient, "
+                   "or all")  # fmt: skip
+    n.add_argument("--world", choices=("harsh", "kind"), default="harsh",
+                   help="harsh (default): every sourced sensor, Earth and fleet effect, reported beside the kind "
+                   "world in one run, with the cost-per-effect table; kind: the earlier, ideal world "
+                   "alone")  # fmt: skip
+    n.add_argument("--cost-seeds", type=int, default=5, help="harsh: seeds per effect of the cost table (0: none)")
     n.add_argument("--seeds", type=int, default=20, help="seeds per scenario")
     n.add_argument("--outage-s", default="30,60,120,300", help="outage lengths [s], comma-separated")
     n.add_argument("--modes", default="all", help="comma-separated navigation modes (default all)")
@@ -129,7 +137,15 @@ def _list(text: str, known: Sequence[str], what: str) -> tuple[str, ...]:
 
 def run_nav_drift_cli(args: argparse.Namespace) -> int:
     from vdm_aero.nav.filter import MODES
-    from vdm_aero_cli.nav_bench import SCENARIOS, BenchSpec, NavArtifacts, build_artifacts, run_nav_drift, write_report
+    from vdm_aero_cli.nav_bench import (
+        SCENARIOS,
+        BenchSpec,
+        NavArtifacts,
+        _units,
+        build_artifacts,
+        run_nav_drift,
+        write_report,
+    )
     from vdm_aero_cli.progress import progress_bar
 
     try:
@@ -142,22 +158,28 @@ def run_nav_drift_cli(args: argparse.Namespace) -> int:
         raise UserInputError("bench nav-drift: --seeds must be at least 1")
     scenarios = _list(args.scenario, list(SCENARIOS), "scenario")
     modes = _list(args.modes, list(MODES), "modes")
-    spec = BenchSpec(scenarios=scenarios, seeds=args.seeds, outages_s=outages, modes=modes, first_seed=args.seed)
+    if args.cost_seeds < 0:
+        raise UserInputError("bench nav-drift: --cost-seeds must be at least 0")
+    worlds = ("harsh", "kind") if args.world == "harsh" else ("kind",)
+    spec = BenchSpec(scenarios=scenarios, seeds=args.seeds, outages_s=outages, modes=modes, first_seed=args.seed,
+                     worlds=worlds, cost_seeds=args.cost_seeds if args.world == "harsh" else 0)  # fmt: skip
     root = args.models or args.out
     if args.models is not None:
         art = NavArtifacts.under(root, args.calibration_minutes)
         for p in (art.dataset_dir / "dataset.yaml", art.deim_dir / "model.yaml", art.nn_dir / "model.yaml"):
             if not p.is_file():
                 raise UserInputError(f"bench nav-drift: --models: {p} missing (run once without --models to build it)")
-    else:
-        say = None if args.json else (lambda s: print(f"building: {s}", flush=True))
-        art = build_artifacts(root, calibration_minutes=args.calibration_minutes, progress=say)
-    n_units = len(spec.scenarios) * spec.seeds
-    with progress_bar("nav-drift", n_units) as update:
-        doc = run_nav_drift(spec, art, jobs=args.jobs, dask_address=args.dask, progress=update)
-    paths = write_report(doc, args.out)
+    # --json: stdout carries the JSON alone; what the building steps print goes to stderr
+    with contextlib.redirect_stdout(sys.stderr) if args.json else contextlib.nullcontext():
+        if args.models is None:
+            say = lambda s: print(f"building: {s}", flush=True)  # noqa: E731
+            art = build_artifacts(root, calibration_minutes=args.calibration_minutes, progress=say)
+        n_units = len(_units(spec))
+        with progress_bar("nav-drift", n_units) as update:
+            doc = run_nav_drift(spec, art, jobs=args.jobs, dask_address=args.dask, progress=update)
+        paths = write_report(doc, args.out)
     if args.json:
-        print(json.dumps(doc["summary"]))
+        print(json.dumps({"summary": doc["summary"], "ins_theory": doc["ins_theory"], "wall_s": doc["wall_s"]}))
     else:
         print(paths["markdown"].read_text())
         print(f"report: {paths['markdown']}  json: {paths['json']}  wall {doc['wall_s']:.0f} s")

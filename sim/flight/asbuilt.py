@@ -59,6 +59,7 @@ __all__ = [
     "as_built_mass",
     "as_built_propulsion",
     "cg_transfer_matrix",
+    "draw_airframe",
     "port_installation_errors",
 ]
 
@@ -195,6 +196,50 @@ AS_BUILT_PRESETS: Final = {
     ),
 }
 """Named as-built aircraft."""
+
+
+def draw_airframe(nominal: AsBuiltSpec, rng: np.random.Generator, index: int) -> AsBuiltSpec:
+    """Airframe ``index`` of a fleet built to the same plans: every parameter drawn uniformly within the build
+    tolerances that the preset's sources give (docs/flight-sim.md, "A fleet"): rigging within the ±0.5° of a
+    clevis turn (incidence, twist) and ±1° at the surfaces' neutral; control effectiveness 0.80–0.90 (an
+    unsealed gap costs 10–20 %, Hoerner & Borst); skin friction cf 0.0045–0.0065; slipstream efficiencies
+    ±0.1 around the preset's; payload 0.1–0.3 kg placed by hand; port bias σ 0.5–2 % of q̄ (Shaw 1960); installed
+    thrust 0.88–0.96 of the data sheet's, full-throttle speed 0.92–0.98. The unsteady aerodynamics are physics,
+    not build, and stay."""
+    u = rng.uniform
+    return replace(
+        nominal,
+        name=f"{nominal.name}-{index}",
+        rigging=Rigging(
+            wing_incidence_offset_deg=float(u(-0.5, 0.5)),
+            wing_left_twist_offset_deg=float(u(-0.7, 0.7)),
+            aileron_offset_deg=float(u(-1.0, 1.0)),
+            elevator_offset_deg=float(u(-1.0, 1.0)),
+            rudder_offset_deg=float(u(-1.0, 1.0)),
+        ),
+        control=ControlEffectiveness(
+            aileron=float(u(0.8, 0.9)), elevator=float(u(0.8, 0.9)), rudder=float(u(0.8, 0.9))
+        ),
+        skin_friction=replace(nominal.skin_friction, cf_reference=float(u(0.0045, 0.0065))),
+        slipstream=Slipstream(
+            radius_fraction=float(u(0.85, 0.95)),
+            wing_efficiency=float(u(0.75, 0.95)),
+            tail_efficiency=float(u(0.6, 0.8)),
+        ),
+        mass=MassChanges(
+            payload_kg=float(u(0.1, 0.3)),
+            payload_x_m=float(u(0.1, 0.25)),
+            payload_z_m=float(u(0.02, 0.08)),
+            battery_shift_x_m=float(u(-0.03, 0.03)),
+        ),
+        ports=replace(
+            nominal.ports,
+            offset_m=float(u(0.5e-3, 1.5e-3)),
+            bias_cp_sigma=float(u(0.005, 0.02)),
+            seed=int(rng.integers(2**31)),
+        ),
+        propulsion=PropulsionChanges(ct0_factor=float(u(0.88, 0.96)), max_rev_factor=float(u(0.92, 0.98))),
+    )
 
 
 def check_effects(names: Iterable[str], where: str) -> frozenset[str]:

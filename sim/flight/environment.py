@@ -38,6 +38,7 @@ __all__ = [
     "Atmosphere",
     "DrydenTurbulence",
     "SteadyWind",
+    "WindProfile",
     "dryden_length_scales_m",
     "dryden_sigmas_m_s",
 ]
@@ -102,6 +103,30 @@ class WindShear:
             return before.ned_m_s
         k = min((t_s - self.start_s) / max(self.ramp_s, 1e-9), 1.0)
         return np.asarray((1.0 - k) * before.ned_m_s + k * self.to.ned_m_s)
+
+
+@dataclass(frozen=True)
+class WindProfile:
+    """The steady wind's change with height in the atmospheric boundary layer: the speed follows the power law
+    V(h) = V_ref·(h/h_ref)^exponent and the direction veers (turns clockwise seen from above, in the northern
+    hemisphere) by ``veer_deg_per_100m`` with height. The scenario's steady wind is the wind at h_ref.
+
+    Sources: the power law with the Hellmann exponent, 0.10 (open water) … 0.15 (level grass) … 0.25
+    (trees, buildings, hills) and up to 0.4 in a stable night-time layer (Stull 1988, *An Introduction to
+    Boundary Layer Meteorology*, §9.7; the 1/7 neutral value over open land); the surface wind crosses the
+    isobars at about 30° over land (Ekman veer, 45° in pure Ekman theory; Stull §8.5), turned through the
+    lowest ~1 km: 2–5° per 100 m."""
+
+    reference_height_m: float
+    exponent: float
+    veer_deg_per_100m: float
+
+    def wind_ned(self, reference: SteadyWind, height_m: float) -> F64Array:
+        """The steady wind NED [m/s] at ``height_m`` above ground (held at its 2 m value below 2 m)."""
+        h = max(height_m, 2.0)
+        speed = reference.speed_m_s * (h / self.reference_height_m) ** self.exponent
+        turned = reference.from_deg + self.veer_deg_per_100m * (h - self.reference_height_m) / 100.0
+        return SteadyWind(speed, turned).ned_m_s
 
 
 def _dryden_height_ft(height_m: float) -> float:

@@ -82,6 +82,11 @@ class StepInputs(NamedTuple):
     # as-built unsteady aerodynamics (sim.flight.asbuilt.UnsteadyLag; 0 for the quasi-steady design):
     alpha_lag: float = 0.0  # [rad] circulation-lag deficit: the aerodynamics see α − alpha_lag
     sep_deficit: float = 0.0  # [rad] separation lag: the α² (separation onset) term sees a further lag
+    # the harsh world's Earth (sim.flight.world_effects): gravity's difference from g0 and the Coriolis and
+    # transport-rate accelerations, NED [m/s²], held over the step (0 on the flat, non-rotating Earth)
+    earth_n: float = 0.0
+    earth_e: float = 0.0
+    earth_d: float = 0.0
 
 
 class Aux(NamedTuple):
@@ -144,7 +149,7 @@ class AircraftDynamics:
     def _rhs(self, y: State, u: StepInputs) -> tuple[State, tuple[float, ...]]:
         # hot path (see the module docstring): locals only, plain tuples
         _, _, _, vn, ve, vd, q0, q1, q2, q3, p, q, r = y
-        wind_n, wind_e, wind_d, d_ail, d_ele, thr, d_rud, alpha_dot, rho, alpha_lag, sep_deficit = u
+        wind_n, wind_e, wind_d, d_ail, d_ele, thr, d_rud, alpha_dot, rho, alpha_lag, sep_deficit, en, ee, ed = u
         s_area, s_span, s_chord, mass, g, nmax, kt0, kt1, kq0, kq1, zp, yp, spin = self._const
         ixx, iyy, izz, ixz, jxx, jyy, jzz, jxz = self._inertia
         # body → NED rotation (vdm_aero.rotation.dcm_from_quat spelt out in floats; tests compare the two)
@@ -216,9 +221,9 @@ class AircraftDynamics:
             vn,
             ve,
             vd,
-            r11 * sfx + r12 * sfy + r13 * sfz,
-            r21 * sfx + r22 * sfy + r23 * sfz,
-            r31 * sfx + r32 * sfy + r33 * sfz + g,
+            r11 * sfx + r12 * sfy + r13 * sfz + en,
+            r21 * sfx + r22 * sfy + r23 * sfz + ee,
+            r31 * sfx + r32 * sfy + r33 * sfz + g + ed,
             -0.5 * (q1 * p + q2 * q + q3 * r),
             0.5 * (q0 * p + q2 * r - q3 * q),
             0.5 * (q0 * q - q1 * r + q3 * p),

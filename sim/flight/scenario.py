@@ -19,8 +19,8 @@ from typing import Any, Final
 import numpy as np
 
 from sim.flight.actuators import ACTUATORS, ActuatorSetSpec
-from sim.flight.asbuilt import AS_BUILT_EFFECTS, AS_BUILT_PRESETS, AsBuiltSpec
-from sim.flight.environment import TURBULENCE_LEVELS, Atmosphere, SteadyWind, WindShear
+from sim.flight.asbuilt import AS_BUILT_EFFECTS, AS_BUILT_PRESETS, AsBuiltSpec, draw_airframe
+from sim.flight.environment import TURBULENCE_LEVELS, Atmosphere, SteadyWind, WindProfile, WindShear
 from sim.flight.guidance import AUTOPILOT_GAINS, AutopilotGains, LoiterRoute, Route, SurveyRoute, WaypointRoute
 from sim.flight.propulsion import PROPELLERS, PropulsionSpec
 from sim.flight.sensors import (
@@ -39,6 +39,7 @@ from sim.flight.sensors import (
     PortGrade,
     TimeWindow,
 )
+from sim.flight.world_effects import FLEET_SEED, HARSH, check_world_effects
 from sim.spec_reader import SpecReader, parse_yaml
 from vdm_aero._typing import F64Array
 from vdm_aero.errors import ModelError, SpecError
@@ -60,6 +61,7 @@ __all__ = [
     "parse_scenario",
     "port_points_array",
     "scenario_names",
+    "with_world",
 ]
 
 KIND: Final = "flight-scenario"
@@ -238,6 +240,11 @@ class Scenario:
     as_built_effects: frozenset[str] = frozenset()
     manoeuvres: tuple[Manoeuvre, ...] = ()
     wind_shear: WindShear | None = None
+    wind_profile: WindProfile | None = None
+    # the harsh world (sim.flight.world_effects): which effects are on, and which airframe of the fleet flies
+    # (its sensor installation, and with ``fleet`` its build, are drawn from the fleet's generator and it)
+    world_effects: frozenset[str] = frozenset()
+    airframe_index: int = 0
     origin: str = field(default="<scenario>", compare=False)
 
     @property
@@ -421,6 +428,15 @@ def parse_scenario(data: Any, *, origin: str = "<scenario>") -> Scenario:
             ),
         )
         sr.finish()
+    profile = None
+    if wr.has("profile"):  # optional: the wind changes with height (power law with veer)
+        pr_ = wr.sub("profile")
+        profile = WindProfile(
+            reference_height_m=pr_.num("reference_height_m", lo=1.0, hi=1000.0),
+            exponent=pr_.num("exponent", lo=0.0, hi=0.6),
+            veer_deg_per_100m=pr_.num("veer_deg_per_100m", lo=-30.0, hi=30.0),
+        )
+        pr_.finish()
     wr.finish()
     tr = r.sub("turbulence")
     turbulence = tr.choice("level", TURBULENCE_LEVELS)
@@ -496,6 +512,19 @@ def parse_scenario(data: Any, *, origin: str = "<scenario>") -> Scenario:
     elif r.has("as_built_effects"):
         raise r.fail("as_built_effects", f"vehicle {vehicle.name} is a design, not an as-built aircraft")
     manoeuvres = _parse_manoeuvres(r, duration) if r.has("manoeuvres") else ()
+    world_effects: frozenset[str] = frozenset()
+    if r.has("world_effects"):  # optional: the harsh world's effects, "all" or a list (default: none)
+        raw = r.raw("world_effects")
+        if raw == "all":
+            world_effects = HARSH
+        elif isinstance(raw, list) and all(isinstance(x, str) for x in raw):
+            try:
+                world_effects = check_world_effects(tuple(raw), r.key("world_effects"))
+            except SpecError as e:
+                raise r.fail("world_effects", str(e).split(": ", 1)[1]) from None
+        else:
+            raise r.fail("world_effects", f"expected 'all' or a list of effect names, got {raw!r}")
+    airframe_index = r.integer("airframe_index") if r.has("airframe_index") else 0
     if r.has("max_bank_deg"):  # the autopilot's bank limit (ArduPlane ROLL_LIMIT_DEG) for manoeuvring flight
         bank = math.radians(r.num("max_bank_deg", lo=10.0, hi=60.0))
         vehicle = replace(vehicle, gains=replace(vehicle.gains, max_bank_rad=bank))
@@ -525,6 +554,9 @@ def parse_scenario(data: Any, *, origin: str = "<scenario>") -> Scenario:
         as_built_effects=effects,
         manoeuvres=manoeuvres,
         wind_shear=shear,
+        wind_profile=profile,
+        world_effects=world_effects,
+        airframe_index=airframe_index,
         origin=origin,
     )
     r.finish()
@@ -586,6 +618,17 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
         text = resources.files("sim").joinpath(*_SCENARIO_DIR, f"{name}.yaml").read_text()
         origin = f"preset:{name}"
     return parse_scenario(parse_yaml(text, origin), origin=origin)
+
+
+def with_world(scenario: Scenario, effects: frozenset[str], airframe_index: int) -> Scenario:
+    """The scenario in a world with ``effects`` (sim.flight.world_effects), flown by airframe ``airframe_index``
+    of the fleet: its sensor installation, and with ``fleet`` its as-built airframe drawn from the build
+    tolerances (:func:`sim.flight.asbuilt.draw_airframe`)."""
+    vehicle = scenario.vehicle
+    if "fleet" in effects and vehicle.as_built is not None:
+        rng = np.random.default_rng([FLEET_SEED, 1, airframe_index])
+        vehicle = replace(vehicle, as_built=draw_airframe(vehicle.as_built, rng, airframe_index))
+    return replace(scenario, vehicle=vehicle, world_effects=frozenset(effects), airframe_index=airframe_index)
 
 
 def port_points_array(ports: PortsConfig) -> F64Array:

@@ -35,6 +35,16 @@ from sim.flight.contract import (
     PortsSample,
     ServoSample,
 )
+from sim.flight.world_effects import (
+    GNSS_ACC_LOG_SIGMA,
+    GNSS_ACC_TAU_S,
+    GNSS_JITTER_S,
+    IMU_PARTS,
+    BaroInstallation,
+    ImuInstallation,
+    MagInstallation,
+    PitotInstallation,
+)
 from vdm_aero._typing import F64Array
 from vdm_aero.geodesy import LocalFrame
 from vdm_aero.lag import FirstOrderLag
@@ -129,6 +139,21 @@ IMU_GRADES: Final = {
         source="Laupré, Khaghani & Skaloud (2019), MEMS IMU model of their VDM-based navigation study: accel "
         "67 µg/√Hz, bias σ 8 mg, GM 0.15 mg (T = 200 s); gyro 0.005 °/s/√Hz, bias σ 720 °/h, GM 31 °/h (T = 200 s)",
     ),
+    "bmi088": ImuGrade(
+        name="bmi088",
+        accel_noise_density_m_s2=175.0 * _UG,
+        accel_turn_on_sigma_m_s2=20.0 * _MG,
+        accel_gm_sigma_m_s2=0.4 * _MG,
+        accel_gm_tau_s=200.0,
+        gyro_noise_density_rad_s=0.014 * DEG,
+        gyro_turn_on_sigma_rad_s=1.0 * DEG,
+        gyro_gm_sigma_rad_s=0.03 * DEG,
+        gyro_gm_tau_s=200.0,
+        source="Bosch BMI088 data sheet BST-BMI088-DS000-19, tables 4-5: accel noise 160 (x, y) and 190 (z) µg/√Hz "
+        "(175 taken for all axes), zero-g offset 20 mg, gyro noise 0.014 °/s/√Hz, zero-rate offset ±1 °/s; bias "
+        "instability as for the ICM-42688-P: the offset tempcos (0.2 mg/K, 0.015 °/s/K) times 2 K, T = 200 s "
+        "(assumption)",
+    ),
 }
 """Named IMU grades."""
 
@@ -139,7 +164,17 @@ class Imu:
     ``1 + (vibration_multiplier − 1)·throttle`` (motor vibration folded into broadband noise, at its
     installed level at full throttle)."""
 
-    def __init__(self, grade: ImuGrade, rate_hz: float, vibration_multiplier: float, rng: np.random.Generator) -> None:
+    def __init__(
+        self,
+        grade: ImuGrade,
+        rate_hz: float,
+        vibration_multiplier: float,
+        rng: np.random.Generator,
+        installation: ImuInstallation | None = None,
+    ) -> None:
+        """``installation``: the harsh world's per-airframe errors (sim.flight.world_effects); None = ideal part."""
+        if installation is not None and installation.vibration_multiplier is not None:
+            vibration_multiplier = installation.vibration_multiplier
         if vibration_multiplier < 1.0:
             raise ValueError(f"vibration_multiplier must be ≥ 1, got {vibration_multiplier}")
         self.grade = grade
@@ -160,6 +195,10 @@ class Imu:
         self._bias: list[list[float]] = []
         self._white: list[list[float]] = []
         self._i = 0
+        self.installation = installation
+        self.board_c: float | None = None  # the board's temperature (harsh world: imu-thermal)
+        self._board_ref_c = 0.0
+        self._dt = dt
 
     def _refill(self) -> None:
         gm = _gauss_markov(self.rng, _BLOCK, self._gm_sigma, self._gm_decay, self._gm_state)
@@ -189,7 +228,10 @@ class Imu:
         throttle: float,
         temperature_c: float,
     ) -> ImuSample:
-        """One measurement of the true specific force [m/s²] and body rates [rad/s] at ``t_s``."""
+        """One measurement of the true specific force [m/s²] and body rates [rad/s] at ``t_s``; the outside
+        air's ``temperature_c`` is what the sensor reports unless the board heats it (imu-thermal)."""
+        if self.installation is not None:
+            return self._sample_installed(t_s, specific_force_b, omega_b, throttle, temperature_c)
         if self._i >= len(self._bias):
             self._refill()
         m = 1.0 + (self.vibration_multiplier - 1.0) * throttle
@@ -203,6 +245,50 @@ class Imu:
             gyro_b_rad_s=np.array((p + b[3] + m * w[3], q + b[4] + m * w[4], r + b[5] + m * w[5])),
             temperature_c=temperature_c,
         )
+
+    def _sample_installed(
+        self,
+        t_s: float,
+        specific_force_b: Sequence[float],
+        omega_b: Sequence[float],
+        throttle: float,
+        air_c: float,
+    ) -> ImuSample:
+        """The harsh world's sample: M·(true) + g-sensitivity + biases (turn-on, Gauss–Markov, thermal)
+        + noise, clipped at the ranges; the temperature is the board's."""
+        inst = self.installation
+        assert inst is not None
+        if self._i >= len(self._bias):
+            self._refill()
+        m = 1.0 + (self.vibration_multiplier - 1.0) * throttle
+        b, w = np.asarray(self._bias[self._i]), np.asarray(self._white[self._i])
+        self._i += 1
+        f = np.asarray(specific_force_b, dtype=np.float64)
+        om = np.asarray(omega_b, dtype=np.float64)
+        acc = inst.accel_m @ f if inst.accel_m is not None else f.copy()
+        gyr = inst.gyro_m @ om if inst.gyro_m is not None else om.copy()
+        if inst.gyro_g_sens is not None:
+            gyr += inst.gyro_g_sens @ f
+        temp_c = air_c
+        if inst.thermal is not None:
+            if self.board_c is None:
+                self.board_c = inst.thermal.start_c(air_c)
+                self._board_ref_c = self.board_c  # biases are the turn-on biases at the boot temperature
+            else:
+                self.board_c = inst.thermal.step(self.board_c, air_c, self._dt)
+            temp_c = self.board_c
+            dtemp = self.board_c - self._board_ref_c
+            if inst.accel_tempco_m_s2_k is not None:
+                acc += inst.accel_tempco_m_s2_k * dtemp
+            if inst.gyro_tempco_rad_s_k is not None:
+                gyr += inst.gyro_tempco_rad_s_k * dtemp
+        acc += b[:3] + m * w[:3]
+        gyr += b[3:] + m * w[3:]
+        if inst.saturate and inst.part is not None:
+            part = IMU_PARTS[inst.part]
+            acc = np.clip(acc, -part.accel_range_m_s2, part.accel_range_m_s2)
+            gyr = np.clip(gyr, -part.gyro_range_rad_s, part.gyro_range_rad_s)
+        return ImuSample(t_s=t_s, accel_b_m_s2=acc, gyro_b_rad_s=gyr, temperature_c=temp_c)
 
 
 # ------------------------------------------------------------------------------------------ GNSS
@@ -281,8 +367,18 @@ class Gnss:
         outages: Sequence[TimeWindow],
         glitches: Sequence[GnssGlitch],
         rng: np.random.Generator,
+        *,
+        true_latency_s: float | None = None,
+        varying_accuracy: bool = False,
     ) -> None:
+        """``true_latency_s`` (harsh world, gnss-latency): the receiver's real latency; fixes then arrive after
+        it (plus jitter) and carry the time an autopilot would log: arrival − the grade's assumed latency.
+        ``varying_accuracy`` (gnss-accuracy): the error σ and the reported hAcc follow a slow log-normal
+        scale (sim.flight.world_effects.GNSS_ACC_SOURCE)."""
         self.grade = grade
+        self.true_latency_s = true_latency_s
+        self.varying_accuracy = varying_accuracy
+        self._acc_log = 0.0
         self.frame = frame
         self.outages = tuple(outages)
         self.glitches = tuple(glitches)
@@ -311,12 +407,23 @@ class Gnss:
             3
         )
         n = self.rng.standard_normal(6)
+        scale = 1.0
+        if self.varying_accuracy:
+            a = math.exp(-self.period_s / GNSS_ACC_TAU_S)
+            self._acc_log = a * self._acc_log + math.sqrt(1.0 - a * a) * GNSS_ACC_LOG_SIGMA * float(
+                self.rng.standard_normal()
+            )
+            scale = math.exp(self._acc_log)
         t_deliver = t_valid_s + g.latency_s
+        t_stamp = t_valid_s
+        if self.true_latency_s is not None:
+            t_deliver = t_valid_s + self.true_latency_s + abs(GNSS_JITTER_S * float(self.rng.standard_normal()))
+            t_stamp = t_deliver - g.latency_s  # the autopilot's log: arrival less its assumed lag
         if self.in_outage(t_valid_s) or self.in_outage(t_deliver):
             self._queue.append((t_deliver, None))
             return
-        pos = np.asarray(pos_ned_m, dtype=np.float64) + self._gm
-        pos += n[:3] * np.array([g.h_white_sigma_m, g.h_white_sigma_m, g.v_white_sigma_m])
+        pos = np.asarray(pos_ned_m, dtype=np.float64) + self._gm * scale
+        pos += n[:3] * np.array([g.h_white_sigma_m, g.h_white_sigma_m, g.v_white_sigma_m]) * scale
         for gl in self.glitches:
             if gl.window.contains(t_valid_s):
                 pos += np.asarray(gl.offset_ned_m)
@@ -325,7 +432,7 @@ class Gnss:
         )
         lat, lon, alt = self.frame.to_geodetic(float(pos[0]), float(pos[1]), float(pos[2]))
         sample = GnssSample(
-            t_s=t_valid_s,
+            t_s=t_stamp,
             lat_deg=lat,
             lon_deg=lon,
             alt_m=alt,
@@ -334,8 +441,8 @@ class Gnss:
             satellites=g.satellites,
             hdop=g.hdop,
             vdop=g.vdop,
-            h_acc_m=self.h_acc_m,
-            v_acc_m=self.v_acc_m,
+            h_acc_m=self.h_acc_m * scale,
+            v_acc_m=self.v_acc_m * scale,
             vel_acc_m_s=g.h_vel_sigma_m_s,
         )
         self._queue.append((t_deliver, sample))
@@ -384,17 +491,26 @@ BARO_GRADES: Final = {
 class Barometer:
     """Static pressure at the vehicle's altitude plus drift, noise and output resolution."""
 
-    def __init__(self, grade: BaroGrade, rng: np.random.Generator) -> None:
+    def __init__(
+        self, grade: BaroGrade, rng: np.random.Generator, installation: BaroInstallation | None = None
+    ) -> None:
+        """``installation`` (harsh world, baro-static-error): the static source's position error."""
         self.grade = grade
         self.rng = rng
+        self.installation = installation
         self._decay = math.exp(-1.0 / (grade.rate_hz * grade.gm_tau_s))
         self._gm = float(rng.standard_normal()) * grade.gm_sigma_pa
 
-    def sample(self, t_s: float, pressure_pa: float, temperature_c: float) -> BaroSample:
+    def sample(
+        self, t_s: float, pressure_pa: float, temperature_c: float, qbar_pa: float = 0.0, alpha_rad: float = 0.0
+    ) -> BaroSample:
+        """Static pressure [Pa]; the dynamic pressure and α matter only with a static-source error."""
         g = self.grade
         n1, n2 = self.rng.standard_normal(2)
         self._gm = self._decay * self._gm + math.sqrt(1.0 - self._decay**2) * g.gm_sigma_pa * float(n1)
         p = pressure_pa + self._gm + g.noise_pa * float(n2)
+        if (inst := self.installation) is not None:
+            p += qbar_pa * (inst.static_cp + inst.static_cp_per_rad * alpha_rad)
         return BaroSample(
             t_s=t_s, pressure_pa=round(p / g.resolution_pa) * g.resolution_pa, temperature_c=temperature_c
         )
@@ -423,20 +539,32 @@ MAG_GRADES: Final = {
 
 
 class Magnetometer:
-    """The Earth field of the scenario rotated into the body, plus the installation's hard-iron offset and noise
-    (soft iron is not modelled)."""
+    """The Earth field of the scenario rotated into the body, plus the installation's hard-iron offset and noise;
+    in the harsh world also soft iron, (I + S)·field, and the motor's field, proportional to throttle."""
 
     def __init__(
-        self, grade: MagGrade, earth_field_ned_t: F64Array, hard_iron_b_t: F64Array, rng: np.random.Generator
+        self,
+        grade: MagGrade,
+        earth_field_ned_t: F64Array,
+        hard_iron_b_t: F64Array,
+        rng: np.random.Generator,
+        installation: MagInstallation | None = None,
     ) -> None:
         self.grade = grade
         self.earth_field_ned_t = np.asarray(earth_field_ned_t, dtype=np.float64)
         self.hard_iron_b_t = np.asarray(hard_iron_b_t, dtype=np.float64)
         self.rng = rng
+        self.installation = installation
 
-    def sample(self, t_s: float, dcm_nb: F64Array) -> MagSample:
-        """``dcm_nb`` (3, 3) rotates body vectors into NED."""
-        b = dcm_nb.T @ self.earth_field_ned_t + self.hard_iron_b_t + self.grade.noise_t * self.rng.standard_normal(3)
+    def sample(self, t_s: float, dcm_nb: F64Array, throttle: float = 0.0) -> MagSample:
+        """``dcm_nb`` (3, 3) rotates body vectors into NED; ``throttle`` (0…1) sets the motor's field."""
+        field = dcm_nb.T @ self.earth_field_ned_t
+        if (inst := self.installation) is not None:
+            if inst.soft_iron is not None:
+                field = field + inst.soft_iron @ field
+            if inst.motor_field_b_t is not None:
+                field = field + inst.motor_field_b_t * throttle
+        b = field + self.hard_iron_b_t + self.grade.noise_t * self.rng.standard_normal(3)
         return MagSample(t_s=t_s, field_b_t=b)
 
 
@@ -469,17 +597,45 @@ PITOT_GRADES: Final = {
 
 
 class PitotAirspeed:
-    """Pitot-static differential pressure ½ρV² (true airspeed; a pitot is insensitive to small α, β) plus
-    offset, noise and resolution."""
+    """Pitot-static differential pressure ½ρV² plus offset, noise and resolution. In the harsh world
+    (``installation``) the probe's Δp is q̄·(1 + ratio error)·(1 − k·θ²) − q̄·(c0 + cα·α) (θ the flow's angle
+    to the probe: total-pressure loss at incidence; c the static source's position error), through the
+    tubing's first-order lag."""
 
-    def __init__(self, grade: PitotGrade, rng: np.random.Generator) -> None:
+    def __init__(
+        self, grade: PitotGrade, rng: np.random.Generator, installation: PitotInstallation | None = None
+    ) -> None:
         self.grade = grade
         self.rng = rng
         self.offset_pa = float(rng.standard_normal()) * grade.offset_sigma_pa
+        self.installation = installation
+        self._lag = (
+            FirstOrderLag(1.0 / grade.rate_hz, np.array([installation.lag_s]))
+            if installation is not None and installation.lag_s > 0.0
+            else None
+        )
 
-    def sample(self, t_s: float, dynamic_pressure_pa: float, temperature_c: float) -> AirspeedSample:
+    def probe_dp_pa(self, dynamic_pressure_pa: float, alpha_rad: float, beta_rad: float) -> float:
+        """The probe's Δp before the tubing [Pa] (the installed errors; q̄ itself when there are none)."""
+        inst = self.installation
+        if inst is None:
+            return dynamic_pressure_pa
+        a, b = alpha_rad - inst.mount_rad[0], beta_rad - inst.mount_rad[1]
+        cos_theta = min(math.cos(a) * math.cos(b), 1.0)
+        theta2 = math.acos(cos_theta) ** 2
+        total = 1.0 - inst.incidence_k * theta2
+        static = inst.static_cp + inst.static_cp_per_rad * alpha_rad
+        return dynamic_pressure_pa * ((1.0 + inst.ratio_error) * total - static)
+
+    def sample(
+        self, t_s: float, dynamic_pressure_pa: float, temperature_c: float, alpha_rad: float = 0.0,
+        beta_rad: float = 0.0,
+    ) -> AirspeedSample:  # fmt: skip
         g = self.grade
-        dp = dynamic_pressure_pa + self.offset_pa + g.noise_pa * float(self.rng.standard_normal())
+        x = self.probe_dp_pa(dynamic_pressure_pa, alpha_rad, beta_rad)
+        if self._lag is not None:
+            x = float(self._lag.step(np.array([x]))[0])
+        dp = x + self.offset_pa + g.noise_pa * float(self.rng.standard_normal())
         return AirspeedSample(t_s=t_s, dp_pa=round(dp / g.resolution_pa) * g.resolution_pa, temperature_c=temperature_c)
 
 

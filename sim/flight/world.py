@@ -63,12 +63,22 @@ from sim.flight.rigid_body import (
     StepInputs,
 )
 from sim.flight.scenario import VEHICLES, Manoeuvre, Scenario, VehiclePreset, port_points_array
-from sim.flight.sensors import Barometer, Gnss, Imu, Magnetometer, PitotAirspeed, PressurePorts, ServoOutputs
+from sim.flight.sensors import (
+    IMU_GRADES,
+    Barometer,
+    Gnss,
+    Imu,
+    Magnetometer,
+    PitotAirspeed,
+    PressurePorts,
+    ServoOutputs,
+)
+from sim.flight.world_effects import FLEET_SEED, IMU_INSTALLATION_EFFECTS, draw_installation, site_field_anomaly_ned_t
 from sim.presets import preset_text
 from vdm_aero._typing import F64Array
 from vdm_aero.dataset import Reference
 from vdm_aero.errors import SpecError, VdmAeroError
-from vdm_aero.geodesy import LocalFrame
+from vdm_aero.geodesy import WGS84_A_M, LocalFrame, earth_rate_ned, normal_gravity_m_s2
 from vdm_aero.rotation import dcm_from_quat, euler_from_quat, quat_from_euler
 
 __all__ = [
@@ -345,17 +355,42 @@ class FlightWorld:
         self._throttle_hold: tuple[float, float] | None = None  # (until [s], throttle)
         self._doublet: tuple[float, float, int, float] | None = None  # (start, period, axis, amplitude [rad])
 
-        # independent, reproducible streams: one generator per stochastic component
-        seeds = np.random.SeedSequence(sc.seed).spawn(7)
+        # independent, reproducible streams: one generator per stochastic component (spawning more children
+        # leaves the first ones as they were, so the kind world's draws do not change)
+        seeds = np.random.SeedSequence(sc.seed).spawn(8)
         rngs = [np.random.default_rng(s) for s in seeds]
-        self.turbulence = DrydenTurbulence(sc.turbulence, rngs[0])
-        self.imu = Imu(sc.imu.grade, sim.physics_rate_hz, sc.imu.vibration_multiplier, rngs[1])
-        self.gnss = Gnss(sc.gnss.grade, self.frame, sc.gnss.outages, sc.gnss.glitches, rngs[2])
-        self.baro = Barometer(sc.baro, rngs[3])
-        self.mag = Magnetometer(
-            sc.mag.grade, np.asarray(sc.magnetic_field.ned_t), np.asarray(sc.mag.hard_iron_b_t), rngs[4]
+        # the harsh world (sim.flight.world_effects): the airframe's installation is drawn from the fleet's
+        # generator and the airframe's index, so every flight of one airframe has the same build
+        fx = sc.world_effects
+        self.installation = (
+            draw_installation(fx, np.random.default_rng([FLEET_SEED, sc.airframe_index]), part_index=sc.airframe_index)
+            if fx
+            else None
         )
-        self.pitot = PitotAirspeed(sc.airspeed, rngs[5]) if sc.airspeed is not None else None
+        inst = self.installation
+        imu_grade = IMU_GRADES[inst.imu.part] if inst is not None and inst.imu.part is not None else sc.imu.grade
+        imu_inst = inst.imu if inst is not None and fx & IMU_INSTALLATION_EFFECTS else None
+        self.turbulence = DrydenTurbulence(sc.turbulence, rngs[0])
+        self.imu = Imu(imu_grade, sim.physics_rate_hz, sc.imu.vibration_multiplier, rngs[1], installation=imu_inst)
+        self.gnss = Gnss(sc.gnss.grade, self.frame, sc.gnss.outages, sc.gnss.glitches, rngs[2],
+                         true_latency_s=inst.gnss_latency_s if inst is not None else None,
+                         varying_accuracy="gnss-accuracy" in fx)  # fmt: skip
+        self.baro = Barometer(sc.baro, rngs[3], installation=inst.baro if inst is not None else None)
+        field_ned = np.asarray(sc.magnetic_field.ned_t)
+        if "mag-site-field" in fx:  # the site's true field: the scenario's (WMM) value is the model's
+            field_ned = field_ned + site_field_anomaly_ned_t(rngs[7])
+        self.mag = Magnetometer(sc.mag.grade, field_ned, np.asarray(sc.mag.hard_iron_b_t), rngs[4],
+                                installation=inst.mag if inst is not None else None)  # fmt: skip
+        self.pitot = (
+            PitotAirspeed(sc.airspeed, rngs[5], installation=inst.pitot if inst is not None else None)
+            if sc.airspeed is not None
+            else None
+        )
+        # the Earth (earth-gravity, earth-rotation): normal gravity at home and its height gradient, Earth rate
+        self._gravity = "earth-gravity" in fx
+        self._rotation = "earth-rotation" in fx
+        self._omega_ie_ned = earth_rate_ned(sc.home_lat_deg)
+        self._earth = (0.0, 0.0, 0.0)
         lag = sc.ports.lag_s if self.port_errors is None else self.port_errors.lag_s
         self.port_sensors = PressurePorts(sc.ports.grade, self.ports.names, sc.ports.rate_hz, lag, rngs[6])
         self.servos = ServoOutputs(sim.control_rate_hz)
@@ -382,6 +417,8 @@ class FlightWorld:
         )
         v_air_ned = dcm_from_quat(q) @ np.asarray(v_air_b)
         self._wind_steady = sc.wind.ned_m_s
+        if sc.wind_profile is not None:
+            self._wind_steady = sc.wind_profile.wind_ned(sc.wind, st.height_m)
         self._turb_heading = sc.wind.to_heading_rad
         gust = self.turbulence.step(0.0, st.airspeed_m_s, st.height_m)
         wind0 = self._wind_steady + self._gust_ned(gust)
@@ -453,7 +490,34 @@ class FlightWorld:
     def _inputs(self) -> StepInputs:
         a, e, t, r = self.actuators.position
         a, e, r = self.control_map.apply(a, e, r)
-        return StepInputs(*self._wind, a, e, t, r, self._alpha_dot, self._rho, self._alpha_lag, self._sep_deficit)
+        return StepInputs(*self._wind, a, e, t, r, self._alpha_dot, self._rho, self._alpha_lag, self._sep_deficit,
+                          *self._earth)  # fmt: skip
+
+    def _earth_accel(self, y: tuple[float, ...]) -> tuple[float, float, float]:
+        """Gravity's difference from g0 and −(2ω_ie + ω_en) × v, NED [m/s²] (Groves 2013, eq. 5.54)."""
+        vn, ve, vd = y[3], y[4], y[5]
+        en = ee = ed = 0.0
+        if self._gravity:
+            lat, _, h = self.frame.to_geodetic(y[0], y[1], y[2])
+            ed = normal_gravity_m_s2(lat, h) - G0_M_S2
+        if self._rotation:
+            wx, wy, wz = self._transport_plus_earth(y, 2.0)
+            en -= wy * vd - wz * ve
+            ee -= wz * vn - wx * vd
+            ed -= wx * ve - wy * vn
+        return en, ee, ed
+
+    def _transport_plus_earth(self, y: tuple[float, ...], k_earth: float) -> tuple[float, float, float]:
+        """k·ω_ie + ω_en in NED [rad/s] (ω_en: the transport rate over the curved Earth, Groves eq. 5.44)."""
+        r = WGS84_A_M - y[2]
+        lat = math.radians(self.home_lat_deg)
+        vn, ve = y[3], y[4]
+        wie = self._omega_ie_ned
+        return (
+            k_earth * float(wie[0]) + ve / r,
+            -vn / r,
+            k_earth * float(wie[2]) - ve * math.tan(lat) / r,
+        )
 
     def thrust_coeff(self) -> float:
         """T_c = T/(q̄·A_disk) at the current state (the slipstream's strength)."""
@@ -566,6 +630,8 @@ class FlightWorld:
         c, s = math.cos(self._turb_heading), math.sin(self._turb_heading)
         if (shear := self.scenario.wind_shear) is not None:
             self._wind_steady = shear.wind_ned(self.scenario.wind, t)
+        if (profile := self.scenario.wind_profile) is not None:
+            self._wind_steady = profile.wind_ned(self.scenario.wind, height)
         ws = self._wind_steady
         self._wind = (float(ws[0]) + c * ug - s * vg, float(ws[1]) + s * ug + c * vg, float(ws[2]) + wg)
         alt = self.home_alt_m + height
@@ -573,6 +639,8 @@ class FlightWorld:
         self._temp_c = temp_k - 273.15
         if self._unsteady is not None:
             self._alpha_lag, self._sep_deficit = self._unsteady.step(self._aux.alpha, self._aux.airspeed, dt)
+        if self._gravity or self._rotation:
+            self._earth = self._earth_accel(y)
         self._u = self._inputs()
         x_air = self._air_state(y)
         if n % self._div_aero == 0 or self.aero.out_of_bounds(x_air):
@@ -607,18 +675,26 @@ class FlightWorld:
                 f_imu[1] + rd * rx - pd * rz + r * wx - p * wz,
                 f_imu[2] + pd * ry - qd * rx + p * wy - q * wx,
             )
-        imu = self.imu.sample(t, f_imu, (p, q, r), self._u.throttle, self._temp_c)
+        omega_imu = (p, q, r)
+        if self._rotation:  # the gyros sense the rotation of the navigation frame too: ω_ib = ω_nb + C_bn·ω_in
+            w_in = self._transport_plus_earth(y, 1.0)
+            c_nb = dcm_from_quat((q0, q1, q2, q3))
+            wb = c_nb.T @ np.asarray(w_in)
+            omega_imu = (p + float(wb[0]), q + float(wb[1]), r + float(wb[2]))
+        imu = self.imu.sample(t, f_imu, omega_imu, self._u.throttle, self._temp_c)
         if n % self._div_gnss == 0:
             self.gnss.measure(t, y[0:3], y[3:6])
         gnss = self.gnss.deliver(t)
-        baro = self.baro.sample(t, self._p_static, self._temp_c) if n % self._div_baro == 0 else None
+        qbar = 0.5 * self._rho * aux.airspeed * aux.airspeed
+        baro = None
+        if n % self._div_baro == 0:
+            baro = self.baro.sample(t, self._p_static, self._temp_c, qbar, aux.alpha)
         mag = None
         if n % self._div_mag == 0:
-            mag = self.mag.sample(t, dcm_from_quat((q0, q1, q2, q3)))
-        qbar = 0.5 * self._rho * aux.airspeed * aux.airspeed
+            mag = self.mag.sample(t, dcm_from_quat((q0, q1, q2, q3)), self._u.throttle)
         airspeed = None
         if self.pitot is not None and n % self._div_pitot == 0:
-            airspeed = self.pitot.sample(t, qbar, self._temp_c)
+            airspeed = self.pitot.sample(t, qbar, self._temp_c, aux.alpha, aux.beta)
         ports = None
         if n % self._div_ports == 0:
             cp = self.aero.ports_cp(x_air, self.thrust_coeff(), self._sep_deficit)

@@ -52,7 +52,7 @@ from vdm_aero.nav.state import AERO_PARAMS, AERO_PRIOR, IDX, N_ERR, NavState
 from vdm_aero.rotation import dcm_from_quat, quat_from_euler
 from vdm_aero.vehicle import VehicleDescription
 
-__all__ = ["GATE_CHI2", "MODES", "ModeSpec", "NavConfig", "NavFilter"]
+__all__ = ["GATE_CHI2", "IMU_DATASHEETS", "MODES", "ModeSpec", "NavConfig", "NavFilter"]
 
 GATE_CHI2: Final = {1: 15.14, 2: 18.42, 3: 21.11, 6: 27.86}
 """χ² 99.99 % points by measurement dimension (scipy.stats.chi2.ppf(0.9999, k))."""
@@ -125,6 +125,26 @@ class NavConfig:
     force_sigma_m_s2: tuple[float, float, float] = (0.4, 0.4, 1.2)
     classic_force_sigma_m_s2: tuple[float, float, float] = (0.6, 0.6, 2.0)
     airdata_sigma_floor: tuple[float, float, float] = (0.5, 0.02, 0.02)  # turbulence and lag: V, α, β
+    # turn-on bias priors: 1.2× the IMU part's board-level initial tolerance (IMU_DATASHEETS)
+    gyro_bias_sigma_rad_s: float = math.radians(0.6)
+    accel_bias_sigma_m_s2: float = 0.25
+
+    @classmethod
+    def for_imu(cls, part: str, **kw: Any) -> NavConfig:
+        """A config whose bias priors come from the IMU part's data sheet (:data:`IMU_DATASHEETS`)."""
+        if part not in IMU_DATASHEETS:
+            raise ValueError(f"unknown IMU part {part!r} (known: {', '.join(IMU_DATASHEETS)})")
+        gyro, accel = IMU_DATASHEETS[part]
+        return cls(gyro_bias_sigma_rad_s=1.2 * gyro, accel_bias_sigma_m_s2=1.2 * accel, **kw)
+
+
+IMU_DATASHEETS: Final = {
+    # part: (gyro zero-rate offset [rad/s], accel zero-g offset [m/s²]) initial tolerances, board level
+    "icm-42688-p": (math.radians(0.5), 0.020 * G0_M_S2),  # TDK DS-000347 rev 1.8, tables 1-2
+    "bmi088": (math.radians(1.0), 0.020 * G0_M_S2),  # Bosch BST-BMI088-DS000-19, tables 4-5
+    "laupre-2019": (math.radians(0.2), 0.008 * G0_M_S2),  # Laupré, Khaghani & Skaloud (2019)
+}
+"""What a user reads off the IMU's data sheet for the filter's turn-on bias priors."""
 
 
 @dataclass
@@ -312,8 +332,8 @@ class NavFilter:
         sig[IDX["p"]] = (3.0, 3.0, 5.0)
         sig[IDX["v"]] = 0.5
         sig[IDX["theta"]] = (math.radians(4.0), math.radians(4.0), math.radians(15.0))
-        sig[IDX["bg"]] = math.radians(0.6)
-        sig[IDX["ba"]] = 0.25
+        sig[IDX["bg"]] = self.config.gyro_bias_sigma_rad_s
+        sig[IDX["ba"]] = self.config.accel_bias_sigma_m_s2
         sig[IDX["wind"]] = (6.0, 6.0, 0.5)
         sig[IDX["bm"]] = 6.0
         sig[IDX["baro"]] = 10.0
