@@ -284,8 +284,7 @@ class Imu:
                 gyr += inst.gyro_tempco_rad_s_k * dtemp
         acc += b[:3] + m * w[:3]
         gyr += b[3:] + m * w[3:]
-        if inst.saturate and inst.part is not None:
-            part = IMU_PARTS[inst.part]
+        if inst.saturate and (part := IMU_PARTS.get(inst.part or self.grade.name)) is not None:
             acc = np.clip(acc, -part.accel_range_m_s2, part.accel_range_m_s2)
             gyr = np.clip(gyr, -part.gyro_range_rad_s, part.gyro_range_rad_s)
         return ImuSample(t_s=t_s, accel_b_m_s2=acc, gyro_b_rad_s=gyr, temperature_c=temp_c)
@@ -378,7 +377,8 @@ class Gnss:
         self.grade = grade
         self.true_latency_s = true_latency_s
         self.varying_accuracy = varying_accuracy
-        self._acc_log = 0.0
+        # the sky's accuracy scale, started from its stationary distribution as every Gauss–Markov process here
+        self._acc_log = float(rng.standard_normal()) * GNSS_ACC_LOG_SIGMA if varying_accuracy else 0.0
         self.frame = frame
         self.outages = tuple(outages)
         self.glitches = tuple(glitches)
