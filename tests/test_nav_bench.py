@@ -204,3 +204,25 @@ def test_free_inertial_theory_terms_grow_as_their_powers_of_time() -> None:
     assert a["gyro_bias_m"] == pytest.approx(9.80665 * math.radians(0.01) * 60.0**3 / 6.0)
     # the BMI088's larger figures give the larger drift
     assert nav_bench.free_inertial_sigma_m("bmi088", 60.0)["rss_m"] > a["rss_m"]
+
+
+def test_the_filters_know_only_what_a_user_knows(monkeypatch: pytest.MonkeyPatch, tmp_path: Any) -> None:
+    # no inverse crime: the bench hands the filters the WMM value at the site and the IMU part's name, never
+    # the world's true field or its installation draws
+    import sim.flight.asbuilt
+    import sim.flight.record
+    from sim.flight.world import FlightWorld
+
+    monkeypatch.setattr(sim.flight.record, "with_model_ports", lambda sc, _d: sc)
+    sc, meta, _ = nav_bench.bench_scenario("survey", 3, tmp_path, 2.0, "harsh")
+    assert set(meta) == {"home", "mag_field_ned_t", "wind_m_s", "wind_from_deg", "turbulence", "sim_seed",
+                         "duration_s", "world", "airframe", "imu_part"}  # fmt: skip
+    assert meta["mag_field_ned_t"] == list(sc.magnetic_field.ned_t)  # the scenario's field is the WMM's
+    assert meta["airframe"] == 3 and meta["imu_part"] == "bmi088"  # airframe 3 of the fleet carries a BMI088
+    world = FlightWorld(sc)
+    assert not np.allclose(world.mag.earth_field_ned_t, sc.magnetic_field.ned_t)  # the site's true field differs
+    assert world.vehicle.as_built != sim.flight.asbuilt.AS_BUILT_PRESETS["uav-2m-asbuilt"]  # a fleet airframe
+    assert nav_bench.world_effects("harsh-without:fleet+mag-motor") == world.scenario.world_effects - {
+        "fleet",
+        "mag-motor",
+    }

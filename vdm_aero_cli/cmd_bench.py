@@ -46,6 +46,8 @@ def register(sub: Any) -> None:
                    "world in one run, with the cost-per-effect table; kind: the earlier, ideal world "
                    "alone")  # fmt: skip
     n.add_argument("--cost-seeds", type=int, default=5, help="harsh: seeds per effect of the cost table (0: none)")
+    n.add_argument("--without", default="", metavar="EFFECTS",
+                   help="harsh: comma-separated effects to switch off (docs/flight-sim.md lists them)")  # fmt: skip
     n.add_argument("--seeds", type=int, default=20, help="seeds per scenario")
     n.add_argument("--outage-s", default="30,60,120,300", help="outage lengths [s], comma-separated")
     n.add_argument("--modes", default="all", help="comma-separated navigation modes (default all)")
@@ -160,7 +162,13 @@ def run_nav_drift_cli(args: argparse.Namespace) -> int:
     modes = _list(args.modes, list(MODES), "modes")
     if args.cost_seeds < 0:
         raise UserInputError("bench nav-drift: --cost-seeds must be at least 0")
-    worlds = ("harsh", "kind") if args.world == "harsh" else ("kind",)
+    harsh = "harsh"
+    if args.without:
+        from sim.flight.world_effects import WORLD_EFFECTS
+
+        off = _list(args.without, list(WORLD_EFFECTS), "without")
+        harsh = "harsh-without:" + "+".join(off)
+    worlds = (harsh, "kind") if args.world == "harsh" else ("kind",)
     spec = BenchSpec(scenarios=scenarios, seeds=args.seeds, outages_s=outages, modes=modes, first_seed=args.seed,
                      worlds=worlds, cost_seeds=args.cost_seeds if args.world == "harsh" else 0)  # fmt: skip
     root = args.models or args.out

@@ -125,11 +125,14 @@ def _flight_key(name: str) -> tuple[str, str | None, tuple[str, ...]]:
 
 
 def world_effects(world: str) -> frozenset[str]:
-    """A world's effects: ``harsh`` (all), ``kind`` (none) or ``only:<effect>`` (the cost table's)."""
+    """A world's effects: ``harsh`` (all), ``harsh-without:<effect>+<effect>`` (all but those), ``kind`` (none)
+    or ``only:<effect>`` (the cost table's)."""
     from sim.flight.world_effects import HARSH, KIND, check_world_effects
 
     if world == "harsh":
         return HARSH
+    if world.startswith("harsh-without:"):
+        return HARSH - check_world_effects(tuple(world.split(":", 1)[1].split("+")), "--without")
     if world == "kind":
         return KIND
     if world.startswith("only:"):
@@ -573,7 +576,7 @@ def bars(summary: dict[str, Any], theory: Sequence[dict[str, Any]] = ()) -> list
         return summary.get(key, {}).get(mode, {}).get("median_m")
 
     nn, dr = "vdm-deim-nn", "airspeed-dr"
-    worlds = dict.fromkeys(k.split("/")[0] for k in summary if not k.startswith("only:"))
+    worlds = dict.fromkeys(k.split("/")[0] for k in summary if not k.startswith("only:"))  # harsh(-without), kind
     for w in worlds:
         for key in [k for k in summary if k.startswith(f"{w}/")]:
             _, sc, length = key.split("/")
@@ -628,17 +631,19 @@ def bars(summary: dict[str, Any], theory: Sequence[dict[str, Any]] = ()) -> list
     return out
 
 
-def cost_table(summary: dict[str, Any], modes: Sequence[str]) -> list[tuple[str, dict[str, float]]]:
-    """What each effect costs: (world, median final error per mode) for the kind world, each effect alone and
-    the harsh world, on the survey at the cost table's outage length."""
+def cost_table(summary: dict[str, Any], modes: Sequence[str], stat: str = "median_m"
+               ) -> list[tuple[str, dict[str, float]]]:  # fmt: skip
+    """What each effect costs: (world, ``stat`` per mode: the median final error, or the NEES share in band)
+    for the kind world, each effect alone and the harsh world, on the survey at the cost table's outage
+    length."""
     key = f"{COST_SCENARIO}/{COST_OUTAGE_S:g}"
     rows = []
     for k, per in summary.items():
         w, rest = k.split("/", 1)
-        if rest == key and (w in ("kind", "harsh") or w.startswith("only:")):
-            rows.append((w, {m: per[m]["median_m"] for m in modes if m in per}))
-    order = {"kind": 0, "harsh": 2}
-    return sorted(rows, key=lambda r: (order.get(r[0], 1), r[0]))
+        if rest == key:
+            rows.append((w, {m: per[m][stat] for m in modes if m in per}))
+    order = {"kind": 0}
+    return sorted(rows, key=lambda r: (order.get(r[0], 2 if r[0].startswith("harsh") else 1), r[0]))
 
 
 def format_report(doc: dict[str, Any]) -> str:
@@ -665,6 +670,10 @@ def format_report(doc: dict[str, Any]) -> str:
                   "| world | " + " | ".join(spec["modes"]) + " |", "|---" * (len(spec["modes"]) + 1) + "|"]  # fmt: skip
         for w, per in costs:
             lines.append(f"| {w} | " + " | ".join(f"{per.get(m, math.nan):.1f}" for m in spec["modes"]) + " |")
+        lines += ["", "What each effect does to consistency: NEES in the 95 % band, share of aided epochs", "",
+                  "| world | " + " | ".join(spec["modes"]) + " |", "|---" * (len(spec["modes"]) + 1) + "|"]  # fmt: skip
+        for w, per in cost_table(doc["summary"], spec["modes"], "nees_in_band"):
+            lines.append(f"| {w} | " + " | ".join(f"{100 * per.get(m, math.nan):.0f} %" for m in spec["modes"]) + " |")
         lines.append("")
     if doc.get("ins_theory"):
         lines += ["## INS coasting against the free-inertial theory (survey, median final error)", "",
