@@ -3,6 +3,7 @@ fault's physics, and the dask path (seeds on a cluster) returning every unit."""
 
 from __future__ import annotations
 
+import json
 import math
 from types import SimpleNamespace
 from typing import Any
@@ -109,7 +110,8 @@ def _fake_unit(world: str, flight: str, seed: int, members: list[tuple[str, str 
                 e = float(seed + 10 * i + length)
                 per[mode] = {"final_error_m": e, "max_error_m": e + 1.0, "final_error_pct": e / 100.0,
                              "covered_2sigma": seed % 2 == 0, "nees_in_band": 0.9,
-                             "reacquisition_jump_m": 1.0}  # fmt: skip
+                             "reacquisition_jump_m": 1.0,
+                             "error_curve": {"t_s": [0.0, length], "e_m": [0.0, e]}}  # fmt: skip
             outages[f"{length:g}"] = per
         rows.append({"world": world, "scenario": name, "seed": seed, "flight": flight, "outages": outages,
                      "imu_part": "icm-42688-p",
@@ -226,3 +228,23 @@ def test_the_filters_know_only_what_a_user_knows(monkeypatch: pytest.MonkeyPatch
         "fleet",
         "mag-motor",
     }
+
+
+def test_bench_json_prints_json_only(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str],
+                                     tmp_path: Any) -> None:  # fmt: skip
+    from vdm_aero_cli.main import main
+
+    def noisy_build(out: Any, **_: Any) -> NavArtifacts:
+        print(f"wrote {out}/data/uav-envelope: 2510 snapshots")  # what the data-set step prints
+        return NavArtifacts(tmp_path, tmp_path, tmp_path)
+
+    monkeypatch.setattr(nav_bench, "build_artifacts", noisy_build)
+    monkeypatch.setattr(nav_bench, "run_unit", _fake_unit)
+    monkeypatch.setattr(nav_bench, "calibrate_airframe", lambda *a: tmp_path)
+    code = main(["bench", "nav-drift", "--json", "--seeds", "1", "--outage-s", "60", "--cost-seeds", "0",
+                 "--modes", "ins", "--jobs", "1", "--out", str(tmp_path / "out")])  # fmt: skip
+    out = capsys.readouterr()
+    assert code == 0
+    doc = json.loads(out.out)  # nothing but the JSON on stdout
+    assert set(doc["summary"]) == {"harsh/survey/60", "kind/survey/60"}
+    assert "wrote" in out.err
