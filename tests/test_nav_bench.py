@@ -149,7 +149,7 @@ def test_the_harsh_run_flies_both_worlds_and_each_effect_alone(monkeypatch: pyte
     keys = set(doc["summary"])
     assert {"harsh/survey/300", "kind/pitot-icing/300", "only:mag-motor/survey/120", "only:fleet/survey/120"} <= keys
     assert "only:fleet/survey/300" not in keys  # the cost table is at its one outage length
-    costs = dict(nav_bench.cost_table(doc["summary"], spec.modes))
+    costs = dict(nav_bench.cost_table(doc["runs"], spec.modes))
     assert next(iter(costs)) == "kind" and list(costs)[-1] == "harsh"
     report = nav_bench.format_report(doc)
     assert "## What each effect costs" in report and "| only:fleet |" in report
