@@ -305,6 +305,22 @@ class Installation:
     gnss_latency_s: float | None
 
 
+LEVEL_TRIM_RESIDUAL_RAD: Final = 0.1 * DEG  # the level calibration's own accuracy (assumption: a hand-levelled
+# airframe on the bench, the order of ArduPilot's 0.1° arming check on the trim's change)
+
+
+def _level_trim(accel_m: F64Array, rng: np.random.Generator) -> F64Array:
+    """The rotation the level calibration applies: it undoes the roll (x) and pitch (y) components of the
+    accelerometer's misalignment rotation (the antisymmetric part of M − I), leaving a residual of
+    :data:`LEVEL_TRIM_RESIDUAL_RAD` per axis; yaw is not observable on the bench and stays."""
+    off = accel_m - np.diag(np.diag(accel_m))
+    anti = 0.5 * (off - off.T)  # ≈ [r]× of the misalignment rotation vector r
+    r = np.array([anti[2, 1], anti[0, 2], 0.0]) - rng.uniform(-1.0, 1.0, 3) * np.array(
+        [LEVEL_TRIM_RESIDUAL_RAD, LEVEL_TRIM_RESIDUAL_RAD, 0.0]
+    )
+    return np.asarray(np.eye(3) - np.array([[0.0, -r[2], r[1]], [r[2], 0.0, -r[0]], [-r[1], r[0], 0.0]]))
+
+
 def _scale_misalignment(rng: np.random.Generator, scale_tol: float, cross: float) -> F64Array:
     m = np.eye(3) + np.diag(rng.uniform(-scale_tol, scale_tol, 3))
     off = rng.uniform(-cross, cross, (3, 3))
@@ -321,6 +337,11 @@ def draw_installation(effects: frozenset[str], rng: np.random.Generator, *, part
     part = IMU_PARTS[parts[part_index % len(parts)]] if "imu-grade" in e else IMU_PARTS["icm-42688-p"]
     accel_m = _scale_misalignment(rng, part.accel_scale_tol, part.accel_cross_axis)
     gyro_m = _scale_misalignment(rng, part.gyro_scale_tol, part.gyro_cross_axis)
+    # the user's level calibration (ArduPilot AHRS_TRIM_X/Y, part of the accelerometer calibration) rotates
+    # both sensors so that the accelerometer reads level when the airframe is level: it removes the roll and
+    # pitch part of the accelerometer's misalignment rotation, to within its own accuracy
+    level = _level_trim(accel_m, rng)
+    accel_m, gyro_m = level @ accel_m, level @ gyro_m
     g_sens = rng.uniform(-1.0, 1.0, (3, 3)) * part.gyro_g_sens_rad_s_per_m_s2
     a_tc = rng.uniform(-1.0, 1.0, 3) * part.accel_tempco_m_s2_k
     g_tc = rng.uniform(-1.0, 1.0, 3) * part.gyro_tempco_rad_s_k
