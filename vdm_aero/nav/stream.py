@@ -139,6 +139,7 @@ class LogRunner:
         self.pos = 0
         self.t_s = -math.inf
         self.gnss_blocked: list[tuple[float, float]] = []
+        self.mag_blocked: list[tuple[float, float]] = []
 
     @property
     def filters(self) -> dict[str, NavFilter]:
@@ -153,11 +154,17 @@ class LogRunner:
         out = copy.copy(self)
         out.driver = copy.deepcopy(self.driver, memo)
         out.gnss_blocked = list(self.gnss_blocked)
+        out.mag_blocked = list(self.mag_blocked)
         return out
 
     def block_gnss(self, start_s: float, end_s: float) -> None:
         """Drop every GNSS fix valid in [start_s, end_s) (an outage)."""
         self.gnss_blocked.append((start_s, end_s))
+
+    def block_mag(self, start_s: float, end_s: float) -> None:
+        """Drop every magnetometer sample in [start_s, end_s) (the benchmark's free-inertial reference: nothing
+        but the IMU and the barometer through an outage)."""
+        self.mag_blocked.append((start_s, end_s))
 
     def _gnss_ok(self, t_valid: float) -> bool:
         return not any(a <= t_valid < b for a, b in self.gnss_blocked)
@@ -184,7 +191,8 @@ class LogRunner:
             elif kind == _BARO:
                 d.baro(t, float(s.baro_pa[i]))
             elif kind == _MAG:
-                d.mag(t, s.mag_b_ut[i])
+                if not any(a <= t < b for a, b in self.mag_blocked):
+                    d.mag(t, s.mag_b_ut[i])
             elif kind == _PITOT:
                 d.pitot(t, float(s.pitot_dp_pa[i]))
             elif kind == _SERVO:
