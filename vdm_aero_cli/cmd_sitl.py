@@ -26,6 +26,9 @@ def register(sub: Any) -> None:
                    "scenario (survey, loiter, ...) with its GNSS outage, the world the benchmark scores")  # fmt: skip
     p.add_argument("--seed", type=int, default=0, help="with --nav-scenario: the benchmark seed")
     p.add_argument("--outage-s", type=float, default=60.0, help="with --nav-scenario: the outage length [s]")
+    p.add_argument("--world", choices=("kind", "harsh"), default="kind",
+                   help="with --nav-scenario: the benchmark's world (harsh: every sourced sensor, Earth and fleet "
+                   "effect, docs/flight-sim.md)")  # fmt: skip
     p.add_argument("--ports-rate-hz", type=float, help="with --nav-scenario: the port sampling rate (50..100 Hz)")
     p.add_argument("--ports-model", type=Path, metavar="DIR",
                    help="with --nav-scenario: the DEIM model whose ports the aircraft carries")  # fmt: skip
@@ -152,7 +155,7 @@ def _nav_scenario(args: argparse.Namespace) -> Any:
 
     if args.nav_scenario not in SCENARIOS:
         raise UserInputError(f"--nav-scenario: unknown {args.nav_scenario!r}; known: {', '.join(SCENARIOS)}")
-    if SCENARIOS[args.nav_scenario][3] not in (None, "shear"):
+    if SCENARIOS[args.nav_scenario][3] not in (None, "shear", "gradient"):
         raise UserInputError(f"--nav-scenario {args.nav_scenario}: its fault is injected into logs, not the world")
     if args.ports_model is None:
         raise UserInputError("--nav-scenario needs --ports-model DIR (the DEIM model that placed the ports)")
@@ -161,7 +164,7 @@ def _nav_scenario(args: argparse.Namespace) -> Any:
     duration = OUTAGE_START_S[1] + args.outage_s + AFTER_S + 5.0  # as the benchmark flies it
     if args.duration_s is not None:  # a longer flight (a soak) gets its winds and turbulence drawn that long
         duration = max(duration, args.duration_s + 5.0)
-    sc, _, t_out = bench_scenario(args.nav_scenario, args.seed, args.ports_model, duration)
+    sc, _, t_out = bench_scenario(args.nav_scenario, args.seed, args.ports_model, duration, args.world)
     gnss = replace(sc.gnss, outages=(TimeWindow(t_out, t_out + args.outage_s),))
     if args.ports_rate_hz is not None:
         if not 50.0 <= args.ports_rate_hz <= 100.0:
