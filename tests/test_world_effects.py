@@ -182,6 +182,11 @@ def test_the_board_temperature_and_the_thermal_bias() -> None:
     assert heated.target_c(-5.0) == HEATER_TARGET_C and heated.target_c(45.0) == 50.0
 
 
+def test_an_installed_imu_has_no_additive_error_stream() -> None:
+    with pytest.raises(ValueError, match="ideal part"):
+        _imu(replace(_IDEAL_IMU, saturate=True)).errors(np.zeros(3))
+
+
 def test_the_ranges_clip() -> None:
     inst = replace(_IDEAL_IMU, saturate=True)
     part = IMU_PARTS["icm-42688-p"]

@@ -209,6 +209,10 @@ class Imu:
     def errors(self, throttle: F64Array) -> F64Array:
         """The errors (n, 6) [accel m/s², gyro rad/s] of the next n samples at throttles (n,): what
         :meth:`sample` adds, consumed from the same stream."""
+        if self.installation is not None:
+            raise ValueError(
+                "errors() is the ideal part's additive model; an installed IMU's errors depend on the truth"
+            )
         thr = np.asarray(throttle, dtype=np.float64)
         out = np.empty((len(thr), 6))
         for k, t in enumerate(thr):
