@@ -27,6 +27,7 @@ from __future__ import annotations
 import copy
 import json
 import math
+import multiprocessing
 import os
 import time
 from collections.abc import Callable, Sequence
@@ -460,7 +461,10 @@ def _pool_map(fn: Callable[..., Any], calls: list[tuple[Any, ...]], jobs: int | 
         from concurrent.futures import ProcessPoolExecutor
         from concurrent.futures import as_completed as done
 
-        with ProcessPoolExecutor(max_workers=jobs or os.cpu_count()) as ex:
+        # spawn, not fork: a parent that has run PyTorch (the demo trains nets before this) leaves OpenMP's
+        # thread pool in a state a forked child deadlocks on when it trains a net (a fleet calibration)
+        ctx = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(max_workers=jobs or os.cpu_count(), mp_context=ctx) as ex:
             futs2 = [ex.submit(fn, *c) for c in calls]
             for i, f2 in enumerate(done(futs2)):
                 out.append(f2.result())
