@@ -19,6 +19,7 @@ from typing import Any
 import yaml
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from firmware_bridge import units
 from firmware_bridge.transport import parse_url
 from vdm_aero.errors import UserInputError
 
@@ -76,6 +77,7 @@ class ServiceConfig:
     mode: str
     mag_field_ned_ut: tuple[float, float, float]
     filter_rate_hz: float
+    gnss_latency_s: float
     ports: PortsConfig
     streams: dict[str, float]
     outputs: OutputsConfig
@@ -276,6 +278,9 @@ def _read(r: _Node) -> ServiceConfig:
     if not 10.0 < math.hypot(*mag) < 80.0:
         raise nav.fail("mag_field_ned_ut", f"|B| = {math.hypot(*mag):.1f} µT is not an Earth field (25..65 µT)")
     filter_rate = nav.num("filter_rate_hz", 50.0, lo=10.0, hi=400.0)
+    gnss_latency = units.GNSS_LATENCY_DEFAULT_S[autopilot]
+    if nav.value("gnss_latency_s", None) is not None:  # null: the autopilot's default
+        gnss_latency = nav.num("gnss_latency_s", lo=0.0, hi=0.5)
     nav.finish()
     p = r.sub("ports")
     names = p.value("names", [])
@@ -321,7 +326,8 @@ def _read(r: _Node) -> ServiceConfig:
     o.finish()
     st = r.sub("state")
     state_file = st.path_("file", exists=False)
-    assert state_file is not None
+    if state_file is None:
+        raise st.fail("file", "expected a path (the state file is not optional)")
     state_every = st.num("save_every_s", 30.0, lo=1.0)
     st.finish()
     lg = r.sub("nav_log")
@@ -344,6 +350,7 @@ def _read(r: _Node) -> ServiceConfig:
         mode=mode,
         mag_field_ned_ut=(float(mag[0]), float(mag[1]), float(mag[2])),
         filter_rate_hz=filter_rate,
+        gnss_latency_s=gnss_latency,
         ports=ports,
         streams=streams,
         outputs=outputs,

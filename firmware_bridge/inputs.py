@@ -168,7 +168,9 @@ class AutopilotClock:
         """The boot time of a frequent stream (the IMU); True when it shows a reboot."""
         rebooted = boot_s < self._last_boot_s - REBOOT_BACKSTEP_S
         if rebooted:
-            self.epoch_s += self._last_boot_s - boot_s + 1e-3
+            # the autopilot was down at least as long as it has been up again: the filter's clock moves on by
+            # that much (not by a millisecond), so the filter sees a gap and grows its covariance over it
+            self.epoch_s += self._last_boot_s + max(boot_s, 1e-3) - boot_s
             self.reboots += 1
             self.offset_s = None
         self._last_boot_s = max(boot_s, self._last_boot_s) if not rebooted else boot_s

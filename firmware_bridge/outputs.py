@@ -27,6 +27,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from firmware_bridge.endpoint import MavlinkMessage
 from vdm_aero._typing import F64Array
+from vdm_aero.rotation import dcm_from_quat
 
 __all__ = ["GPS_LEAP_S", "Solution", "gps_week_time", "inflation"]
 
@@ -111,7 +112,11 @@ def global_position_sensor(mav: mavlink2.MAVLink, s: Solution, *, target: tuple[
 
 
 def odometry(mav: mavlink2.MAVLink, s: Solution, *, k: float) -> MavlinkMessage:
-    """ODOMETRY in MAV_FRAME_LOCAL_NED of our origin (PX4 EKF2_EV_*), with diagonal covariances."""
+    """ODOMETRY (PX4 EKF2_EV_*): the pose in MAV_FRAME_LOCAL_NED of our origin, the velocity in the frame
+    ``child_frame_id`` names, MAV_FRAME_BODY_FRD (v_b = C_nbᵀ·v_ned; PX4's mavlink_receiver maps that id to
+    its body-frame velocity), with diagonal covariances (the velocity's is isotropic, so the rotation leaves
+    it as it is)."""
+    v_b = dcm_from_quat(s.q_nb).T @ np.asarray(s.v_ned_m_s, dtype=np.float64)
     nan21 = [math.nan] * 21
     pose_cov = list(nan21)
     pose_cov[0] = pose_cov[6] = (k * s.sigma_h_m) ** 2  # upper-triangle row-major: (0,0), (1,1), (2,2)
@@ -120,7 +125,7 @@ def odometry(mav: mavlink2.MAVLink, s: Solution, *, k: float) -> MavlinkMessage:
     vel_cov[0] = vel_cov[6] = vel_cov[11] = (k * s.sigma_vel_m_s) ** 2
     return mav.odometry_encode(
         round(s.boot_s * 1e6), mavlink2.MAV_FRAME_LOCAL_NED, mavlink2.MAV_FRAME_BODY_FRD,
-        *(float(v) for v in s.p_ned_m), [float(v) for v in s.q_nb], *(float(v) for v in s.v_ned_m_s),
+        *(float(v) for v in s.p_ned_m), [float(v) for v in s.q_nb], *(float(v) for v in v_b),
         math.nan, math.nan, math.nan, pose_cov, vel_cov, 0, mavlink2.MAV_ESTIMATOR_TYPE_VIO, 0,
     )  # fmt: skip
 

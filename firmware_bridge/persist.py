@@ -5,7 +5,14 @@ and baro offsets, the six model-correction parameters and their covariance block
 turbulence; saved atomically (temporary file, fsync, rename) periodically and on SIGTERM. A restarted
 service initialises position, velocity and attitude from the first GNSS fix as always, then takes the
 saved slow states; their covariance is doubled in σ (the aircraft may have been powered down and the
-biases moved), and a wind older than :data:`WIND_MAX_AGE_S` is not restored.
+biases moved), and a wind older than :data:`WIND_MAX_AGE_S` is not restored. What is restored is checked
+against what was saved:
+
+* the model corrections only into the same mode with the same models (their sha256 identity): they correct
+  the models they were estimated with, and mean nothing to others;
+* the IMU biases keep their saved values but get their turn-on σ back when the autopilot has booted since
+  the save (its boot instant, wall clock less boot time, moved by more than :data:`BOOT_MATCH_S`): a power
+  cycle redraws the turn-on biases and the autopilot measured new gyro offsets at boot.
 
 **Navigation log** (:class:`NavLog`): an append-only CSV of the solution, rotated by size
 (``logging.handlers.RotatingFileHandler``).
@@ -30,9 +37,11 @@ from vdm_aero.nav.filter import NavFilter, slow_index
 
 __all__ = ["NAV_LOG_COLUMNS", "FilterStateStore", "NavLog"]
 
-FORMAT = "vdm-aero-filter-state/1"
+FORMAT = "vdm-aero-filter-state/2"
+FORMAT_V1 = "vdm-aero-filter-state/1"  # without mode/models/boot checks: read, restored as from another boot
 WIND_MAX_AGE_S = 600.0
 RESTORE_SIGMA_FACTOR = 2.0
+BOOT_MATCH_S = 5.0  # wall clock against the autopilot's boot time: NTP steps and link latency stay below
 
 
 class FilterStateStore:
@@ -42,7 +51,9 @@ class FilterStateStore:
         self.path = path
         self.saves = 0
 
-    def save(self, f: NavFilter) -> bool:
+    def save(self, f: NavFilter, *, models_id: str = "", autopilot_boot_unix_s: float = math.nan) -> bool:
+        """Save ``f``'s slow states with the identity of the models they go with and the autopilot boot
+        (wall-clock instant [s] of its boot) they were estimated in."""
         if f.x is None or f.engine is None:
             return False
         values, cov = f.slow_states()
@@ -51,7 +62,8 @@ class FilterStateStore:
         buf = io.BytesIO()
         gust = np.asarray(f.process.gust_sigma_m_s)
         np.savez(buf, format=np.array(FORMAT), mode=np.array(f.mode), saved_unix_s=np.array(time.time()),
-                 values=values, cov=cov, gust_sigma_m_s=gust)  # fmt: skip
+                 values=values, cov=cov, gust_sigma_m_s=gust, models_id=np.array(models_id),
+                 autopilot_boot_unix_s=np.array(autopilot_boot_unix_s))  # fmt: skip
         self.path.parent.mkdir(parents=True, exist_ok=True)
         tmp = self.path.with_name(f".{self.path.name}.tmp")
         try:
@@ -76,17 +88,30 @@ class FilterStateStore:
         except (OSError, ValueError) as e:
             raise UserInputError(f"{self.path}: not a filter state file ({e}); delete it to start afresh") from None
         n = len(slow_index())
-        if str(d.get("format")) != FORMAT or d["values"].shape != (n,) or d["cov"].shape != (n, n):
+        if str(d.get("format")) not in (FORMAT, FORMAT_V1) or d["values"].shape != (n,) or d["cov"].shape != (n, n):
             raise UserInputError(f"{self.path}: not a {FORMAT} file; delete it to start afresh")
         return d
 
     @staticmethod
-    def restore(f: NavFilter, saved: dict[str, Any]) -> list[str]:
-        """Put saved slow states into an initialised filter; returns the names restored."""
+    def restore(f: NavFilter, saved: dict[str, Any], *, models_id: str = "",
+                autopilot_boot_unix_s: float = math.nan) -> list[str]:  # fmt: skip
+        """Put saved slow states into an initialised filter running ``models_id`` in an autopilot booted at
+        ``autopilot_boot_unix_s`` (module docstring); returns the names restored, and what was held back as
+        ``-name`` (``-aero``: another mode or other models; ``-bias-sigma``: the autopilot has booted since)."""
         age = time.time() - float(saved["saved_unix_s"])
         keep_wind = 0.0 <= age <= WIND_MAX_AGE_S
+        same_models = (str(saved.get("mode", "")) == f.mode and bool(models_id)
+                       and str(saved.get("models_id", "")) == models_id)  # fmt: skip
+        boot = float(saved.get("autopilot_boot_unix_s", math.nan))
+        same_boot = abs(boot - autopilot_boot_unix_s) <= BOOT_MATCH_S  # False when either is unknown (NaN)
         cov = np.asarray(saved["cov"], dtype=np.float64) * RESTORE_SIGMA_FACTOR**2
-        restored = f.restore_slow_states(np.asarray(saved["values"], dtype=np.float64), cov, keep_wind=keep_wind)
+        restored = f.restore_slow_states(np.asarray(saved["values"], dtype=np.float64), cov, keep_wind=keep_wind,
+                                         keep_aero=same_models)  # fmt: skip
+        if not same_models:
+            restored.append("-aero")
+        if not same_boot:
+            f.imu_recalibrated()
+            restored.append("-bias-sigma")
         gs = np.asarray(saved["gust_sigma_m_s"], dtype=np.float64)
         if gs.shape == (3,) and np.all(np.isfinite(gs)):
             f.process.set_gust_sigma(gs)

@@ -14,6 +14,7 @@ at start, with exit code 2.
 
 from __future__ import annotations
 
+import hashlib
 import math
 import sys
 import time
@@ -57,6 +58,20 @@ PERIODIC_S = 0.005
 ERROR_LOG_EVERY_S = 10.0
 LATENCY_WINDOW = 20000
 AUTOPILOT_COMPONENT = mavlink2.MAV_COMP_ID_AUTOPILOT1
+RESTORE_WAIT_S = 3.0  # how long a restore waits for SYSTEM_TIME's boot instant before going without it
+
+
+def models_identity(cfg: ServiceConfig) -> str:
+    """The identity (sha256) of what the model corrections were estimated with: the design data set's and the
+    models' manifests (each lists the sha256 of its files) and the vehicle description."""
+    h = hashlib.sha256()
+    for p in (cfg.design_data / "dataset.yaml", cfg.deim_model / "model.yaml",
+              cfg.nn_model / "model.yaml" if cfg.nn_model is not None else None):  # fmt: skip
+        if p is not None and p.is_file():
+            h.update(p.read_bytes())
+        h.update(b"\0")
+    h.update(cfg.vehicle.encode())
+    return h.hexdigest()
 
 
 @dataclass
@@ -112,6 +127,8 @@ class CompanionService:
             signing = load_signing_key(cfg.signing_key_file, require=cfg.signing_require)
         self.store = FilterStateStore(cfg.state_file)
         self._saved = self.store.load()
+        self.models_id = models_identity(cfg)
+        self._t_initialised_s = math.inf
         self.transport = open_transport(cfg.connection)
         self.ep = MavEndpoint(self.transport, system_id=cfg.system_id, component_id=cfg.component_id,
                               signing=signing)  # fmt: skip
@@ -261,6 +278,9 @@ class CompanionService:
         self._last_imu_in = t_in
         if self.clock.observe_boot_s(s.t_s):
             self._print(f"vdm-aero serve: autopilot reboot (boot time {s.t_s:.1f} s); re-requesting streams")
+            if self.driver is not None:
+                for f in self.driver.filters.values():
+                    f.imu_recalibrated()
             self.imu_int.reset()
             self._next.pop("streams", None)
             self._last_baro_ms = self._last_gps_us = self._last_imu_stamp = -1
@@ -319,19 +339,41 @@ class CompanionService:
             return
         assert self.driver is not None
         p = self.frame.to_ned(fix.lat_deg, fix.lon_deg, fix.alt_m)
-        t_valid = self.clock.filter_s(fix.t_valid_s)
-        t_now = max(self.clock.filter_s(self._boot_now_s), t_valid)
+        # GPS_RAW_INT is stamped when the autopilot received the fix: the receiver's latency before that is the
+        # configured one (what ArduPilot's GPS_DELAY_MS and PX4's EKF2_GPS_DELAY subtract)
+        t_arrived = self.clock.filter_s(fix.t_s)
+        t_valid = t_arrived - self.cfg.gnss_latency_s
+        t_now = max(self.clock.filter_s(self._boot_now_s), t_arrived)
         was = self.filter is not None and self.filter.initialised
         self.driver.gnss(t_valid, t_now, np.asarray(p, dtype=np.float64).reshape(3), fix.v_ned_m_s)
-        if not was and self.filter is not None and self.filter.initialised and self._saved is not None:
-            self.stats.restored = FilterStateStore.restore(self.filter, self._saved)
-            self._saved = None
-            self._print(f"vdm-aero serve: restored {', '.join(self.stats.restored)} from {self.store.path}")
+        if not was and self.filter is not None and self.filter.initialised:
+            self._t_initialised_s = t_now
+        self._restore_state(t_now)
+
+    def _restore_state(self, t_s: float) -> None:
+        """The saved slow states into the initialised filter, once the autopilot's boot instant is known
+        (SYSTEM_TIME, 1 Hz: at most RESTORE_WAIT_S after the filter started, then without it)."""
+        f = self.filter
+        if f is None or not f.initialised or self._saved is None:
+            return
+        if self._unix_minus_boot_s is None and t_s - self._t_initialised_s < RESTORE_WAIT_S:
+            return
+        boot = self._unix_minus_boot_s if self._unix_minus_boot_s is not None else math.nan
+        self.stats.restored = FilterStateStore.restore(f, self._saved, models_id=self.models_id,
+                                                       autopilot_boot_unix_s=boot)  # fmt: skip
+        self._saved = None
+        kept = [r for r in self.stats.restored if not r.startswith("-")]
+        held = {"-aero": "model corrections (another mode or other models)",
+                "-bias-sigma": "bias certainty (the autopilot has booted since)"}  # fmt: skip
+        back = [held[r] for r in self.stats.restored if r in held]
+        self._print(f"vdm-aero serve: restored {', '.join(kept)} from {self.store.path}"
+                    + (f"; not restored: {'; '.join(back)}" if back else ""))  # fmt: skip
 
     def _start_filter(self, fix: units.GnssFix) -> None:
         m = self.models
         self.frame = LocalFrame(fix.lat_deg, fix.lon_deg, fix.alt_m)
         cfg = NavConfig(vehicle=m.vehicle, origin_alt_m=fix.alt_m, filter_rate_hz=self.cfg.filter_rate_hz,
+                        gnss_latency_s=self.cfg.gnss_latency_s,
                         mag_field_ned_ut=np.asarray(self.cfg.mag_field_ned_ut))  # fmt: skip
         self.filter = NavFilter(self.cfg.mode, cfg, m.derivatives)
         fe = PortFrontEnd(m.pressure_model, dict(m.models), range_pa=self.cfg.ports.range_pa,
@@ -353,7 +395,8 @@ class CompanionService:
         if not self._from_autopilot(msg) or self.driver is None or not math.isfinite(self._boot_now_s):
             return
         s = units.from_servo_output_raw(msg)
-        ail, ele, rud, thr = self.models.vehicle.servos.deflections_rad(s.pwm_us[None, :4])
+        servos = self.models.vehicle.servos
+        ail, ele, rud, thr = servos.deflections_rad(servos.surfaces_pwm_us(s.pwm_us[None, :]))
         controls = np.array([ail[0], ele[0], rud[0]])
         # SERVO_OUTPUT_RAW's uint32 µs clock wraps after 71 min: the outputs apply now
         self.driver.servo(self.clock.filter_s(self._boot_now_s), controls, float(thr[0]))
@@ -396,6 +439,8 @@ class CompanionService:
         if not UNIX_PLAUSIBLE_S[0] <= unix_s <= UNIX_PLAUSIBLE_S[1]:
             raise ValueError(f"time_unix_usec {msg.time_unix_usec}: not a UTC time between 2015 and 2100")
         self._unix_minus_boot_s = unix_s - msg.time_boot_ms * 1e-3
+        if math.isfinite(self._boot_now_s):  # the clock has started
+            self._restore_state(self.clock.filter_s(self._boot_now_s))
 
     def _on_timesync(self, msg: MavlinkMessage, t_in: float) -> None:
         if msg.tc1 != 0 and self._from_autopilot(msg):
@@ -567,7 +612,8 @@ class CompanionService:
         if self.filter is None:
             return
         try:
-            self.store.save(self.filter)
+            boot = self._unix_minus_boot_s if self._unix_minus_boot_s is not None else math.nan
+            self.store.save(self.filter, models_id=self.models_id, autopilot_boot_unix_s=boot)
         except OSError as e:
             self._storage_failed("state", e)
 

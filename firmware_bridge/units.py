@@ -17,8 +17,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Final
 
 import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from firmware_bridge.endpoint import MavlinkMessage
 from vdm_aero._typing import F64Array
@@ -71,9 +73,21 @@ class BaroPitotSample:
     temperature_c: float
 
 
+# the receiver latency each autopilot subtracts from a fix's arrival by default [s]: ArduPilot's u-blox driver
+# (AP_GPS_UBLOX::get_lag: 0.12 s for the 7 and M8 series "based on flight logs", GPS_DELAY_MS overrides) and
+# PX4's EKF2_GPS_DELAY (110 ms). GPS_RAW_INT and the logs stamp a fix when the autopilot received it.
+GNSS_LATENCY_DEFAULT_S: Final = {"ardupilot": 0.12, "px4": 0.11}
+
+
+def gnss_latency_default_s(mav_autopilot: int) -> float:
+    """The default receiver latency [s] of a HEARTBEAT's autopilot (MAV_AUTOPILOT); ArduPilot's for others."""
+    return GNSS_LATENCY_DEFAULT_S["px4" if mav_autopilot == mavlink2.MAV_AUTOPILOT_PX4 else "ardupilot"]
+
+
 @dataclass(frozen=True)
 class GnssFix:
-    t_valid_s: float  # time of validity [s]
+    t_s: float  # the autopilot's stamp [s]: when it received the fix (ArduPilot's last_fix_time_ms, PX4's
+    # sensor_gps timestamp), the receiver's latency after the time of validity
     fix_type: int
     lat_deg: float
     lon_deg: float
@@ -146,7 +160,7 @@ def from_gps_raw_int(m: MavlinkMessage) -> GnssFix | None:
     course = math.radians(m.cog * 0.01) if m.cog != UINT16_UNKNOWN else math.nan
     h_acc = getattr(m, "h_acc", 0)
     return GnssFix(
-        t_valid_s=m.time_usec * 1e-6,
+        t_s=m.time_usec * 1e-6,
         fix_type=int(m.fix_type),
         lat_deg=m.lat * 1e-7,
         lon_deg=m.lon * 1e-7,

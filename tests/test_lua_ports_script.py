@@ -3,6 +3,9 @@ ArduPilot bindings (tests/lua/ardupilot_stubs.lua, driven by tests/lua/run_scrip
 
 Expectations are computed here from the raw bytes the simulated transducers return, with the MS4525DO
 datasheet's transfer function written out independently of the script.
+
+The stubs have no ``arming`` binding: :data:`ARMING_SHIM` adds ``arming:is_armed()`` to them for every run
+(scenario ``armed_from = k``: armed from update k on, 0 = armed at boot; absent: never armed).
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ from dataclasses import dataclass
 from itertools import pairwise
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -29,7 +33,49 @@ PSI_TO_PA = 6894.757
 NAME_MAX = 10  # NAMED_VALUE_FLOAT.name is char[10]
 AP_MAX_NAME_SIZE = 16  # ArduPilot parameter names
 SEV_WARNING = 4  # MAV_SEVERITY: 0..4 are warnings and worse
-WIRING = {"VPP_COUNT": 12, "VPP_RATE_HZ": 50, "VPP_MUX_ADDR": 0x70, "VPP_ADDR": 0x28, "VPP_RANGE_PSI": 1}
+# VPP_SKIP_CAL = 1: the bus, framing and transfer-function tests read the transducers' own zero from update 1
+WIRING = {
+    "VPP_COUNT": 12,
+    "VPP_RATE_HZ": 50,
+    "VPP_MUX_ADDR": 0x70,
+    "VPP_ADDR": 0x28,
+    "VPP_RANGE_PSI": 1,
+    "VPP_SKIP_CAL": 1,
+}
+CALIBRATE = WIRING | {"VPP_SKIP_CAL": 0}  # the default: zero-offset calibration at boot
+ZERO_COUNTS = 0.5 * FULL_COUNTS  # 0 Pa on a type-A part: the middle of its 10 %..90 % span
+LSB_PA = 2 * PSI_TO_PA / (0.8 * FULL_COUNTS)  # one count of the ±1 psi part, 1.05 Pa
+SEV_INFO = 6
+
+# arming:is_armed() for the stubs, installed by `lua -e` before run_script.lua loads them: it wraps the stubs'
+# constructor, follows the update number through hooks.begin_update and records each call as ARMED k result
+ARMING_SHIM = """
+local real_dofile = dofile
+function dofile(path)
+  local m = real_dofile(path)
+  if type(path) == "string" and path:match("ardupilot_stubs%.lua$") then
+    local new = m.new
+    m.new = function(scenario, emit)
+      local env, hooks = new(scenario, emit)
+      local k = 0
+      local begin = hooks.begin_update
+      hooks.begin_update = function(kk, at_us)
+        k = kk
+        return begin(kk, at_us)
+      end
+      local arming = {}
+      function arming:is_armed()
+        local armed = scenario.armed_from ~= nil and k >= scenario.armed_from
+        emit("ARMED", k, tostring(armed))
+        return armed
+      end
+      env.arming = arming
+      return env, hooks
+    end
+  end
+  return m
+end
+"""
 
 LUA_MISSING = "lua5.4 not installed: apt-get install lua5.4 (.ci/run installs it)"
 
@@ -41,6 +87,18 @@ def lua() -> str:
         if os.environ.get("CI"):
             pytest.fail(LUA_MISSING)
         pytest.skip(LUA_MISSING)
+    return exe
+
+
+@pytest.fixture(params=["lua5.4", "lua5.3"])
+def any_lua(request: pytest.FixtureRequest) -> str:
+    """Both interpreters: lua5.3 is the version ArduPilot embeds."""
+    exe = shutil.which(request.param)
+    if exe is None:
+        reason = f"{request.param} not installed: apt-get install {request.param} (.ci/run installs it)"
+        if os.environ.get("CI"):
+            pytest.fail(reason)
+        pytest.skip(reason)
     return exe
 
 
@@ -108,12 +166,22 @@ class Run:
     def warnings(self) -> list[tuple[int, str]]:
         return [(int(ms), text) for _, ms, sev, text in self.of("TEXT") if int(sev) <= SEV_WARNING]
 
+    def infos(self) -> list[str]:
+        return [text for _, _, sev, text in self.of("TEXT") if int(sev) == SEV_INFO]
+
 
 def run_script(lua: str, tmp_path: Path, **scenario: object) -> Run:
     path = tmp_path / f"scenario_{len(list(tmp_path.glob('scenario_*.lua')))}.lua"
     path.write_text("return " + to_lua(scenario) + "\n")
+    shim = tmp_path / "arming_shim.lua"
+    if not shim.exists():
+        shim.write_text(ARMING_SHIM)
     proc = subprocess.run(
-        [lua, str(DRIVER), str(SCRIPT), str(path)], capture_output=True, text=True, timeout=120, check=False
+        [lua, "-e", f"dofile([[{shim}]])", str(DRIVER), str(SCRIPT), str(path)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
     )
     assert proc.returncode == 0, proc.stderr
     run = Run([line.split("\t") for line in proc.stdout.splitlines()])
@@ -125,10 +193,14 @@ def port_names(n: int) -> list[str]:
     return [f"P{i:02d}" for i in range(n)]
 
 
-def text_interval_ms() -> int:
-    m = re.search(r"^local TEXT_INTERVAL_MS = (\d+)", SCRIPT.read_text(), re.MULTILINE)
-    assert m, "the script states its fault-text interval"
+def script_constant(name: str) -> int:
+    m = re.search(rf"^local {name} = (\d+)", SCRIPT.read_text(), re.MULTILINE)
+    assert m, f"the script states {name}"
     return int(m.group(1))
+
+
+def text_interval_ms() -> int:
+    return script_constant("TEXT_INTERVAL_MS")
 
 
 @pytest.mark.parametrize("count", [1, 12, 20])
@@ -267,7 +339,7 @@ def test_mux_channels_are_closed_between_updates(lua: str, tmp_path: Path) -> No
 
 def test_without_a_mux_ports_are_at_consecutive_addresses(lua: str, tmp_path: Path) -> None:
     sensors = make_sensors(9, 3, 3)
-    params = {"VPP_COUNT": 3, "VPP_MUX_ADDR": 0, "VPP_ADDR": 0x28, "VPP_RANGE_PSI": 2}
+    params = {"VPP_COUNT": 3, "VPP_MUX_ADDR": 0, "VPP_ADDR": 0x28, "VPP_RANGE_PSI": 2, "VPP_SKIP_CAL": 1}
     run = run_script(lua, tmp_path, params=params, updates=3, frames=sensors.frames)
     for k in (1, 2, 3):
         want = {f"P{p:02d}": datasheet_pa(c, 2) for p, c in sensors.counts[k].items()}
@@ -304,8 +376,10 @@ def test_parameters_fit_ardupilot_limits_and_companion_defaults(lua: str, tmp_pa
     idxs = [idx for idx, _ in params.values()]
     assert len(set(idxs)) == len(idxs) and all(1 <= i <= n for i in idxs)
     assert all(len(prefix + name) <= AP_MAX_NAME_SIZE for name in params)
-    assert {"ENABLE", "RATE_HZ", "COUNT", "BUS", "MUX_ADDR", "RANGE_PSI"} <= set(params)
+    assert {"ENABLE", "RATE_HZ", "COUNT", "BUS", "MUX_ADDR", "RANGE_PSI", "SKIP_CAL"} <= set(params)
     assert params["RATE_HZ"][1] == 50
+    assert params["SKIP_CAL"][1] == 0  # zero-offset calibration at boot by default, as ARSPD_SKIP_CAL = 0
+    assert n == len(params)  # no unused slot, no parameter beyond the table
     # defaults match the companion's: 12 ports P00..P11
     assert params["COUNT"][1] == 12
 
@@ -350,3 +424,129 @@ def test_readings_are_logged_to_dataflash_in_fixed_chunks(lua: str, tmp_path: Pa
     assert set(rows[1][3].split(",")) == set(port_names(24)) - set(port_names(12))
     off = run_script(lua, tmp_path, params=WIRING | {"VPP_LOG": 0}, updates=2, frames=make_sensors(2, 2, 12).frames)
     assert off.of("LOG") == [] and len(off.of("NVF")) == 24
+
+
+# ---------------------------------------------------------------------------------- zero-offset calibration
+@dataclass
+class AtRestThenFlow:
+    """Transducers with per-port zero offsets: at rest (0 Pa) for updates 1..rest, then random pressures.
+
+    Offsets are m + ½ counts (m integer, |m| ≥ 5) so that a reading is 8192 + m + j (+ noise) counts exactly for a
+    true pressure of 8191.5 + j counts: no rounding, the remaining error after the calibration is the offset
+    estimate's alone. ``noise`` (±1 count, the part's flicker) is on the readings at rest only."""
+
+    frames: dict[int, dict[int, list[int]]]
+    true_pa: dict[int, dict[int, float]]  # per update after the rest, the true Δp of each port
+    offset_pa: list[float]
+
+
+def at_rest_then_flow(
+    seed: int, ports: int, rest: int, flow: int, *, noise: bool = True, warmup: int = 0, dead: int | None = None
+) -> AtRestThenFlow:
+    """``warmup``: the first ``warmup`` readings are 300 counts off (settling); ``dead``: that port reports a fault
+    (status 3) at rest."""
+    rng = np.random.default_rng(seed)
+    m = rng.integers(5, 40, ports) * rng.choice([-1, 1], ports)
+    frames: dict[int, dict[int, list[int]]] = {}
+    true_pa: dict[int, dict[int, float]] = {}
+    for k in range(1, rest + flow + 1):
+        j = np.zeros(ports, dtype=np.int64) if k <= rest else rng.integers(-3000, 3001, ports)
+        jitter = rng.integers(-1, 2, ports) if (noise and k <= rest) else np.zeros(ports, dtype=np.int64)
+        counts = 8192 + m + j + jitter + (300 if k <= warmup else 0)
+        temps = rng.integers(200, 1800, ports)
+        frames[k] = {
+            p: pack(int(counts[p]), int(temps[p]), 3 if (p == dead and k <= rest) else 0) for p in range(ports)
+        }
+        if k > rest:
+            true_pa[k] = {p: datasheet_pa(ZERO_COUNTS + float(j[p]), 1) for p in range(ports)}
+    offset_pa = [(float(mm) + 0.5) * LSB_PA for mm in m]
+    return AtRestThenFlow(frames, true_pa, offset_pa)
+
+
+def first_finite_update(run: Run) -> int:
+    return min(int(k) for k, _, _, v in run.of("NVF") if math.isfinite(float(v)))
+
+
+def test_zero_offsets_are_calibrated_at_boot_and_subtracted(any_lua: str, tmp_path: Path) -> None:
+    """Every part reads 5.5..39.5 counts (6..42 Pa) at 0 Pa. After the boot window (≥ CAL_MIN_MS at rest, the first
+    CAL_DISCARD readings, here a settling transient of 300 counts, left out) each port reads the true Δp within a
+    count; during the window every port is sent, and logged, as NaN in complete frames."""
+    rest, flow = 150, 20  # 3 s at rest at 50 Hz: longer than the window
+    discard, window_ms = script_constant("CAL_DISCARD"), script_constant("CAL_MIN_MS")
+    assert discard >= 5 and window_ms >= 1000  # no shorter than AP_Airspeed's boot calibration
+    sim = at_rest_then_flow(31, 12, rest, flow, warmup=discard)
+    assert min(abs(o) for o in sim.offset_pa) > 5 * LSB_PA  # the uncorrected script would be off by > 5 counts
+    run = run_script(any_lua, tmp_path, params=CALIBRATE, updates=rest + flow, frames=sim.frames)
+    calls = dict(run.calls())
+    done = first_finite_update(run)
+    period_ms = 1000 // CALIBRATE["VPP_RATE_HZ"]
+    assert window_ms <= calls[done] - calls[1] <= window_ms + 2 * period_ms  # the window, not much more
+    for k in range(1, done):  # calibrating: every port, one millis, NaN
+        got = run.values(k)
+        assert sorted(got) == port_names(12) and all(math.isnan(v) for v in got.values()), k
+        assert len(run.nvf_ms(k)) == 1
+    logged = [v for kk, _, _, _, vals in run.of("LOG") if int(kk) < done for v in vals.split(",")]
+    assert logged and all(math.isnan(float(v)) for v in logged)
+    for k in range(done, rest + 1):  # still at rest, now zeroed: 0 Pa within the ±1 count flicker
+        assert all(abs(v) <= 1.5 * LSB_PA for v in run.values(k).values()), k
+    for k in range(rest + 1, rest + flow + 1):
+        want = {f"P{p:02d}": pa for p, pa in sim.true_pa[k].items()}
+        got = run.values(k)
+        assert sorted(got) == sorted(want)
+        for name, pa in want.items():
+            assert abs(got[name] - pa) <= 0.5 * LSB_PA, (k, name, got[name] - pa)
+    assert run.warnings() == []
+    assert sum("zeroed 12 ports" in t for t in run.infos()) == 1
+
+
+@pytest.mark.parametrize("armed_from", [0, 3])
+def test_armed_before_any_reading_is_averaged_keeps_offsets_zero(lua: str, tmp_path: Path, armed_from: int) -> None:
+    """Armed at boot (an in-flight reboot: no calibration at all) or within the discarded first readings: offsets
+    stay 0, the readings are sent as they are from then on, and one warning says so."""
+    updates = 40
+    sim = at_rest_then_flow(32, 12, 0, updates)
+    run = run_script(lua, tmp_path, params=CALIBRATE, updates=updates, frames=sim.frames, armed_from=armed_from)
+    assert first_finite_update(run) == max(1, armed_from)
+    for k in range(max(1, armed_from), updates + 1):
+        want = {f"P{p:02d}": pa + sim.offset_pa[p] for p, pa in sim.true_pa[k].items()}  # the raw readings
+        assert run.values(k) == pytest.approx(want, rel=1e-12, abs=1e-9), k
+    armed_texts = [t for _, t in run.warnings() if "armed" in t and "zero cal" in t]
+    assert len(armed_texts) == 1
+    assert not [t for t in run.infos() if "zeroed" in t]
+
+
+def test_arming_during_the_window_ends_it_with_the_readings_so_far(lua: str, tmp_path: Path) -> None:
+    """Armed at update 30: the offsets are the means of readings 6..29 (exact here: no noise), the reading of
+    update 30 is the first corrected one, and a warning says the calibration was cut short."""
+    discard = script_constant("CAL_DISCARD")
+    armed_at, flow = 30, 20
+    sim = at_rest_then_flow(33, 12, armed_at - 1, flow + 1, noise=False, warmup=discard)
+    run = run_script(lua, tmp_path, params=CALIBRATE, updates=armed_at + flow, frames=sim.frames, armed_from=armed_at)
+    assert first_finite_update(run) == armed_at
+    for k in range(armed_at, armed_at + flow + 1):
+        want = {f"P{p:02d}": pa for p, pa in sim.true_pa[k].items()}
+        assert run.values(k) == pytest.approx(want, rel=1e-9, abs=1e-6), k
+    (text,) = [t for _, t in run.warnings() if "armed" in t]
+    assert f"{armed_at - 1 - discard} readings" in text
+
+
+def test_port_without_a_valid_reading_in_the_window_keeps_offset_zero_and_says_so_once(
+    lua: str, tmp_path: Path
+) -> None:
+    """P04 reports a fault all through the window, then recovers: it is sent uncorrected (offset 0), the others
+    zeroed, and one warning (rate-limited: it waits for the fault-text interval after the first fault summary)
+    names P04. It is not repeated, and the fault summary of the window's bad readings follows it."""
+    rest, flow = 150, 500  # 13 s: room for the warning (~6 s), a repeat or the next summary (~11 s)
+    sim = at_rest_then_flow(34, 12, rest, flow, dead=4)
+    run = run_script(lua, tmp_path, params=CALIBRATE, updates=rest + flow, frames=sim.frames)
+    for k in range(rest + 1, rest + flow + 1):
+        got = run.values(k)
+        assert got["P04"] == pytest.approx(sim.true_pa[k][4] + sim.offset_pa[4], rel=1e-12), k
+        for p in set(range(12)) - {4}:
+            assert abs(got[f"P{p:02d}"] - sim.true_pa[k][p]) <= 0.5 * LSB_PA, (k, p)
+    texts = [t for _, t in run.warnings()]
+    cal_texts = [i for i, t in enumerate(texts) if "zero cal" in t]
+    assert len(cal_texts) == 1 and "P04" in texts[cal_texts[0]]
+    assert any("bad readings, last P04" in t for t in texts[cal_texts[0] + 1 :])
+    assert all(b - a >= text_interval_ms() for a, b in pairwise(ms for ms, _ in run.warnings()))
+    assert sum("zeroed 11 ports" in t for t in run.infos()) == 1

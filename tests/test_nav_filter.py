@@ -154,3 +154,40 @@ def test_cp_from_the_pitot_dynamic_pressure(world: dict[str, Any]) -> None:
         cz_fads.append(a.coeffs["deim"][2])
         cz_pitot.append(b.coeffs["deim"][2])
     assert np.median(np.abs(np.array(cz_pitot) / np.array(cz_fads) - 1.0)) < 0.1
+
+
+def test_fixes_are_never_locked_out_for_good(world: dict[str, Any]) -> None:
+    # a pose gone wrong with a confident covariance (what an autopilot reboot mid-turn stitched into the clock
+    # left behind): heading and velocity turned 90° at 100 s. The gate rejects every fix against it; after
+    # GNSS_LOCKOUT_S the filter starts again from a fix, keeping its slow states, and navigates again
+    from vdm_aero.nav.filter import GNSS_LOCKOUT_S
+    from vdm_aero.rotation import quat_from_euler, quat_multiply
+
+    r = _runner(world, ("airspeed-dr",))
+    r.run_until(100.0)
+    f = r.filters["airspeed-dr"]
+    assert f.x is not None and _h_error(world, f, r.t_s) < 10.0
+    turn = np.array(quat_from_euler(0.0, 0.0, np.pi / 2))
+    f.x.q_nb = quat_multiply(turn, f.x.q_nb)
+    f.x.v_ned = np.array([-f.x.v_ned[1], f.x.v_ned[0], f.x.v_ned[2]])
+    bias_before = f.x.b_gyro_b.copy()
+    r.run_until(100.0 + GNSS_LOCKOUT_S + 20.0)
+    assert f.x is not None and _h_error(world, f, r.t_s) < 10.0
+    assert f.counts.get("gnss_lockout_reinitialised", 0) >= 1
+    np.testing.assert_allclose(f.x.b_gyro_b, bias_before, atol=2e-3)  # the slow states were kept
+
+
+def test_an_autopilot_reboot_gives_the_biases_their_turn_on_sigma_back(world: dict[str, Any]) -> None:
+    from vdm_aero.nav.state import IDX
+
+    r = _runner(world, ("airspeed-dr",))
+    r.run_until(60.0)
+    f = r.filters["airspeed-dr"]
+    assert f.engine is not None
+    converged = np.sqrt(np.diag(f.engine.P)[IDX["bg"]])
+    assert np.all(converged < 0.5 * f.config.gyro_bias_sigma_rad_s)
+    f.imu_recalibrated()
+    np.testing.assert_allclose(np.sqrt(np.diag(f.engine.P)[IDX["bg"]]), f.config.gyro_bias_sigma_rad_s)
+    np.testing.assert_allclose(np.sqrt(np.diag(f.engine.P)[IDX["ba"]]), f.config.accel_bias_sigma_m_s2)
+    r.run_until(120.0)  # and the filter goes on navigating
+    assert _h_error(world, f, r.t_s) < 10.0

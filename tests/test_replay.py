@@ -116,7 +116,7 @@ def test_replay_judged_against_the_log_gnss_agrees_with_the_truth(
     """An outage the replay cuts into a stretch the receiver saw: judged against the log's own fixes (what a user
     has) the errors are the truth-judged ones within the fixes' own error (~1–2 m)."""
     mag = ",".join(map(str, golden_flight["mag"]))
-    common = [golden_flight["tlog"], "--outage", "30:50", "--json", "--mag-field", mag]
+    common = [golden_flight["tlog"], "--outage", "30:60", "--json", "--mag-field", mag]
     rc_g, out_g, err_g = _replay_here(capsys, *common, "--out", tmp_path / "g")
     rc_t, out_t, err_t = _replay_here(capsys, *common, "--truth", golden_flight["truth"], "--out", tmp_path / "t")
     assert rc_g == 0 and rc_t == 0, err_g + err_t

@@ -9,7 +9,9 @@ import math
 import socket
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -53,7 +55,7 @@ def test_units_from_the_mock_encoders() -> None:
                                           round(100 * math.hypot(vn, ve)), to_cdeg_heading(course), 14, 0, 700,
                                           1000, 200, 0, 0))  # fmt: skip
     g = units.from_gps_raw_int(m)
-    assert g is not None and g.t_valid_s == 5.0 and g.fix_type == 3
+    assert g is not None and g.t_s == 5.0 and g.fix_type == 3
     assert (g.lat_deg, g.lon_deg, g.alt_m) == pytest.approx((lat, lon, alt), abs=1e-7)
     np.testing.assert_allclose(g.v_ned_m_s[:2], [vn, ve], atol=0.02)  # cm/s and cdeg quantisation
     assert math.isnan(g.v_ned_m_s[2]) and g.h_acc_m == pytest.approx(0.7)
@@ -142,7 +144,8 @@ def test_clock_is_continuous_across_an_autopilot_reboot_and_timesync() -> None:
     assert not c.observe_boot_s(100.0)
     t_before = c.filter_s(100.0)
     assert c.observe_boot_s(2.0) and c.reboots == 1
-    assert c.filter_s(2.0) > t_before
+    # down for at least the 2 s the autopilot has been up again: the filter sees that gap
+    assert c.filter_s(2.0) == pytest.approx(t_before + 2.0)
     c.timesync(tc1_ns=50_000_000_000, ts1_ns=1_000_000_000, now_ns=1_002_000_000)  # 2 ms round trip
     assert c.offset_s == pytest.approx(50.0 - 1.001) and c.rtt_s == pytest.approx(0.002)
 
@@ -255,6 +258,12 @@ def test_px4_outputs_decode() -> None:
     o = _roundtrip(odometry(mav, s, k=2.0))  # type: ignore[arg-type]
     assert (o.frame_id, o.child_frame_id) == (mavlink2.MAV_FRAME_LOCAL_NED, mavlink2.MAV_FRAME_BODY_FRD)
     assert (o.x, o.y, o.z, o.vx) == pytest.approx((10.0, -20.0, -105.0, 18.0))
+    # the velocity is in the frame child_frame_id names: heading east, the body's x is east and y south
+    from vdm_aero.rotation import quat_from_euler
+
+    east = _roundtrip(odometry(mav, replace(s, q_nb=np.array(quat_from_euler(0.0, 0.0, math.pi / 2))), k=2.0))  # type: ignore[arg-type]
+    assert (east.vx, east.vy, east.vz) == pytest.approx((-3.0, -18.0, 0.5), abs=1e-5)
+    assert east.velocity_covariance[0] == east.velocity_covariance[6] == pytest.approx((2.0 * 0.8) ** 2)
     assert (o.pose_covariance[0], o.pose_covariance[6], o.pose_covariance[11]) == pytest.approx((576.0, 576.0, 16.0))
 
 
@@ -273,12 +282,13 @@ def test_filter_state_survives_a_restart(tmp_path: Path) -> None:
     a.x.b_gyro_b = np.array([1e-3, -2e-3, 5e-4])
     a.x.aero[2] = 1.04
     store = FilterStateStore(tmp_path / "state" / "filter-state.npz")
-    assert store.save(a) and not list((tmp_path / "state").glob(".*tmp"))  # atomic: no leftovers
+    ids = {"models_id": "m1", "autopilot_boot_unix_s": 1_790_000_000.0}
+    assert store.save(a, **ids) and not list((tmp_path / "state").glob(".*tmp"))  # atomic: no leftovers
     b = NavFilter("airspeed-dr", cfg)
     b.initialise(0.0, np.array([5.0, 5.0, 0.0]), np.array([20.0, 0.0, 0.0]), f_b, mag)
     saved = store.load()
     assert saved is not None
-    restored = FilterStateStore.restore(b, saved)
+    restored = FilterStateStore.restore(b, saved, **ids)
     assert restored == ["bg", "ba", "wind", "bm", "baro", "aero"] and b.x is not None
     np.testing.assert_allclose(b.x.wind_ned, [-5.0, 4.0, 0.1])
     np.testing.assert_allclose(b.x.b_gyro_b, [1e-3, -2e-3, 5e-4])
@@ -503,3 +513,91 @@ def test_udp_replies_go_to_the_last_sender_whose_frames_were_accepted(tmp_path: 
         with pytest.raises(TimeoutError):
             rogue.recv(512)
     t.close()
+
+
+# ----------------------------------------------------------------------------------- servo mapping
+def _vehicle_with(tmp_path: Path, edits: dict[str, dict[str, Any]]) -> Path:
+    from importlib import resources
+
+    doc = yaml.safe_load(resources.files("vdm_aero").joinpath("vehicles", "uav-2m.yaml").read_text())
+    for surface, kv in edits.items():
+        doc["servos"][surface].update(kv)
+    p = tmp_path / "my-plane.yaml"
+    p.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return p
+
+
+def test_servo_outputs_map_from_any_channel(tmp_path: Path) -> None:
+    # ailerons on SERVO6 and elevator on SERVO9 (a V-tail mixer, a flaperon set-up): SERVO_OUTPUT_RAW's outputs
+    # beyond the fourth reach the force model
+    from firmware_bridge.units import from_servo_output_raw
+    from vdm_aero.vehicle import load_vehicle
+
+    v = load_vehicle(str(_vehicle_with(tmp_path, {"aileron": {"channel": 6}, "elevator": {"channel": 9}})))
+    assert v.servos.channels == (6, 9, 3, 4)
+    mav = mavlink2.MAVLink(None, 1, 1)
+    pwm = [1500] * 16
+    pwm[5], pwm[8], pwm[2], pwm[0], pwm[1] = 1700, 1300, 1750, 1100, 1900  # outputs 1 and 2 now drive nothing
+    m = _roundtrip(mav.servo_output_raw_encode(1_000_000, 0, *pwm[:8], *pwm[8:]))
+    s = from_servo_output_raw(m)
+    ail, ele, rud, thr = v.servos.deflections_rad(v.servos.surfaces_pwm_us(s.pwm_us[None, :]))
+    assert float(ail[0]) == pytest.approx(200.0 / 1432.394)
+    assert float(ele[0]) == pytest.approx(-200.0 / 1432.394)
+    assert (float(rud[0]), float(thr[0])) == pytest.approx((0.0, 0.75))
+
+
+@pytest.mark.parametrize(("edits", "message"), [
+    ({"aileron": {"channel": 17}}, r"servos\.aileron\.channel: expected a servo output 1\.\.16, got 17"),
+    ({"rudder": {"channel": 3}}, r"servos\.rudder\.channel: output 3 is already throttle"),
+])  # fmt: skip
+def test_a_bad_servo_channel_is_one_line(tmp_path: Path, edits: dict[str, dict[str, Any]], message: str) -> None:
+    from vdm_aero.errors import VehicleError
+    from vdm_aero.vehicle import load_vehicle
+
+    with pytest.raises(VehicleError, match=message):
+        load_vehicle(str(_vehicle_with(tmp_path, edits)))
+
+
+@pytest.mark.parametrize(
+    ("later", "held"),
+    [
+        ({}, []),
+        ({"models_id": "other-models"}, ["-aero"]),
+        ({"mode": "ins"}, ["-aero"]),
+        ({"autopilot_boot_unix_s": 1_790_000_600.0}, ["-bias-sigma"]),  # the autopilot booted since the save
+        ({"autopilot_boot_unix_s": math.nan}, ["-bias-sigma"]),  # its boot unknown: assume the worst
+    ],
+)
+def test_a_restored_state_is_checked_against_the_mode_the_models_and_the_boot(
+    tmp_path: Path, later: dict[str, Any], held: list[str]
+) -> None:
+    from firmware_bridge.persist import FilterStateStore
+    from vdm_aero.nav.filter import NavConfig, NavFilter
+    from vdm_aero.nav.state import IDX
+    from vdm_aero.vehicle import load_vehicle
+
+    cfg = NavConfig(vehicle=load_vehicle("uav-2m"), origin_alt_m=50.0, mag_field_ned_ut=np.array([20.1, -4.9, 46.5]))
+    f_b, mag = np.array([0.0, 0.0, -9.80665]), np.array([20.1, -4.9, 46.5])
+    a = NavFilter("airspeed-dr", cfg)
+    a.initialise(0.0, np.zeros(3), np.array([20.0, 0.0, 0.0]), f_b, mag)
+    assert a.x is not None and a.engine is not None
+    a.x.aero[2] = 1.04
+    a.x.b_gyro_b = np.array([1e-3, -2e-3, 5e-4])
+    a.engine.P[IDX["bg"], IDX["bg"]] = 1e-8  # converged
+    store = FilterStateStore(tmp_path / "filter-state.npz")
+    boot = 1_790_000_000.0
+    assert store.save(a, models_id="models-1", autopilot_boot_unix_s=boot)
+    saved = store.load()
+    assert saved is not None
+    now = {"mode": "airspeed-dr", "models_id": "models-1", "autopilot_boot_unix_s": boot + 0.4} | later
+    b = NavFilter(str(now["mode"]), cfg)
+    b.initialise(0.0, np.zeros(3), np.array([20.0, 0.0, 0.0]), f_b, mag)
+    assert b.x is not None and b.engine is not None
+    got = FilterStateStore.restore(b, saved, models_id=str(now["models_id"]),
+                                   autopilot_boot_unix_s=float(now["autopilot_boot_unix_s"]))  # fmt: skip
+    assert [r for r in got if r.startswith("-")] == held
+    assert b.x.aero[2] == pytest.approx(1.04 if "-aero" not in held else 1.0)
+    np.testing.assert_allclose(b.x.b_gyro_b, [1e-3, -2e-3, 5e-4])  # the values are kept either way
+    sigma_bg = np.sqrt(np.diag(b.engine.P)[IDX["bg"]])
+    want = cfg.gyro_bias_sigma_rad_s if "-bias-sigma" in held else 2.0 * 1e-4  # turn-on σ, or the saved σ × 2
+    np.testing.assert_allclose(sigma_bg, want, rtol=1e-6)

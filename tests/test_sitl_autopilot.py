@@ -536,7 +536,8 @@ def test_unit_conversions_round_trip_against_the_truth() -> None:
             if m.fix_type == mavlink2.GPS_FIX_TYPE_NO_FIX:  # only before the first GNSS sample (at 0.2 s)
                 assert m.time_usec < 200_000 and m.lat == 0
                 continue
-            tr = world.inner.truth_at(m.time_usec * 1e-6)  # time of validity
+            # stamped when the autopilot received it (ArduPilot's last_fix_time_ms): valid one latency earlier
+            tr = world.inner.truth_at(m.time_usec * 1e-6 - world.inner.config.gnss_latency_s)
             assert m.fix_type == 3
             assert abs(m.lat * 1e-7 - tr.lat_deg) < ATOL_DEG_E7 and abs(m.alt * 1e-3 - tr.alt_m) <= 1e-3
             assert abs(m.vel - math.hypot(*tr.v_ned_m_s[:2]) * 100.0) <= 0.5 + 1e-6  # cm/s

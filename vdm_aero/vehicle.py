@@ -114,15 +114,27 @@ class ServoChannel:
         return np.asarray((p - self.trim_us) / self.us_per_rad)
 
 
+SERVO_OUTPUTS: Final = 16  # SERVO_OUTPUT_RAW's servo1_raw … servo16_raw
+ARDUPLANE_CHANNELS: Final = (1, 2, 3, 4)  # ArduPlane's default outputs of aileron, elevator, throttle, rudder
+
+
 @dataclass(frozen=True)
 class ServoMap:
-    """The autopilot's servo outputs (ArduPlane order aileron, elevator, throttle, rudder) in SI."""
+    """The autopilot's servo outputs in SI; ``channels``: the outputs (1 … 16, SERVOn) of aileron, elevator,
+    throttle and rudder (ArduPlane's defaults 1, 2, 3, 4; any SERVOn_FUNCTION assignment is a new mapping)."""
 
     aileron: ServoChannel
     elevator: ServoChannel
     rudder: ServoChannel
     throttle_min_us: float
     throttle_max_us: float
+    channels: tuple[int, int, int, int] = ARDUPLANE_CHANNELS
+
+    def surfaces_pwm_us(self, outputs_pwm_us: FloatArray) -> F64Array:
+        """The PWM (…, 4) [µs] of aileron, elevator, throttle and rudder, in the flight log's ArduPlane column
+        order, from every output (…, ≥ the highest mapped channel) [µs], output 1 first."""
+        p = np.asarray(outputs_pwm_us, dtype=np.float64)
+        return p[..., [c - 1 for c in self.channels]]
 
     def deflections_rad(self, pwm_us: FloatArray) -> tuple[F64Array, F64Array, F64Array, F64Array]:
         """(aileron [rad], elevator [rad], rudder [rad], throttle 0…1) from PWM (…, 4) [µs]."""
@@ -228,7 +240,17 @@ class _Keys:
             raise self.fail(str(extra[0]), "unknown key")
 
 
+def _channel(servos: _Keys, surface: str, default: int) -> int:
+    """A surface's output number (SERVOn, 1 … 16), read without using up the surface's section."""
+    r = servos.sub(surface)
+    v = r.data.get("channel", default)
+    if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= SERVO_OUTPUTS:
+        raise r.fail("channel", f"expected a servo output 1..{SERVO_OUTPUTS}, got {v!r}")
+    return int(v)
+
+
 def _servo(r: _Keys) -> ServoChannel:
+    r.seen.add("channel")  # read by _channel
     ch = ServoChannel(
         trim_us=r.num("trim_us", lo=800.0, hi=2200.0),
         us_per_rad=r.num("us_per_rad", lo=-1e5, hi=1e5),
@@ -286,13 +308,20 @@ def parse_vehicle(doc: Any, origin: str) -> VehicleDescription:
     tmin, tmax = tr.num("min_us", lo=800.0, hi=2200.0), tr.num("max_us", lo=800.0, hi=2200.0)
     if not tmax > tmin:
         raise tr.fail("max_us", f"must exceed min_us ({tmin:g}), got {tmax:g}")
+    tr.seen.add("channel")  # read by _channel
     tr.finish()
+    surfaces = ("aileron", "elevator", "throttle", "rudder")
+    channels = [_channel(sr, s, ARDUPLANE_CHANNELS[i]) for i, s in enumerate(surfaces)]
+    for i, s in enumerate(surfaces):
+        if channels[i] in channels[:i]:
+            raise sr.sub(s).fail("channel", f"output {channels[i]} is already {surfaces[channels.index(channels[i])]}")
     servos = ServoMap(
         aileron=_servo(sr.sub("aileron")),
         elevator=_servo(sr.sub("elevator")),
         rudder=_servo(sr.sub("rudder")),
         throttle_min_us=tmin,
         throttle_max_us=tmax,
+        channels=(channels[0], channels[1], channels[2], channels[3]),
     )
     sr.finish()
     ir = r.sub("imu")

@@ -56,6 +56,9 @@ def register(sub: Any) -> None:
         help="processes to share the modes among (default: one per CPU)",
     )
     p.add_argument("--system-id", type=int, help="the autopilot's MAVLink system id in a tlog (default: first heard)")
+    p.add_argument("--gnss-latency-s", type=float, metavar="S", help="a tlog's GNSS receiver latency: GPS_RAW_INT is "
+                   "stamped this long after the fix's validity (default: the autopilot's own default, ArduPilot "
+                   "0.12, PX4 0.11; set your GPS_DELAY_MS / EKF2_GPS_DELAY)")  # fmt: skip
     p.add_argument("--out", type=Path, metavar="DIR", help="report directory (default out/replay/<log name>)")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     p.add_argument("--update-golden", action="store_true", help="regenerate tests/golden/replay-survey.csv: fly "
@@ -144,6 +147,8 @@ def run_replay_cmd(args: argparse.Namespace) -> int:
         for m in modes:
             if m not in MODES:
                 raise UserInputError(f"--modes: unknown mode {m!r}; known: {', '.join(MODES)}")
+    if args.gnss_latency_s is not None and not 0.0 <= args.gnss_latency_s <= 0.5:
+        raise UserInputError(f"--gnss-latency-s: {args.gnss_latency_s:g} is outside [0, 0.5] s")
     if args.jobs < 1:
         raise UserInputError(f"--jobs: must be ≥ 1, got {args.jobs}")
     if (args.model is None) != (args.design_data is None):
@@ -153,7 +158,7 @@ def run_replay_cmd(args: argparse.Namespace) -> int:
     out = args.out or Path("out") / "replay" / args.log.stem
     doc = replay(args.log, model=args.model, design_data=args.design_data, vehicle=args.vehicle, outages=outages,
                  modes=modes, truth=args.truth, mag_field_ned_ut=mag, system_id=args.system_id, out=out,
-                 jobs=args.jobs)  # fmt: skip
+                 jobs=args.jobs, gnss_latency_s=args.gnss_latency_s)  # fmt: skip
     if args.json:
         print(json.dumps(doc, indent=1))
     else:
@@ -165,7 +170,7 @@ def run_replay_cmd(args: argparse.Namespace) -> int:
 def replay(log_path: Path, *, model: Path | None, design_data: Path | None, vehicle: str | Path,
            outages: list[tuple[float, float]], modes: tuple[str, ...], truth: Path | None = None,
            mag_field_ned_ut: np.ndarray | None = None, system_id: int | None = None, out: Path,
-           jobs: int = 1) -> dict[str, Any]:  # fmt: skip
+           jobs: int = 1, gnss_latency_s: float | None = None) -> dict[str, Any]:  # fmt: skip
     """Read, replay, score and write the report; returns the JSON document."""
     from firmware_bridge.logs import read_log, read_truth_file
     from vdm_aero.geomagnetism import decimal_year, earth_field_ned_ut
@@ -182,7 +187,8 @@ def replay(log_path: Path, *, model: Path | None, design_data: Path | None, vehi
         models, veh = _load_models(design_data, model, vehicle)
         names = models.port_names if models is not None else ()
         with progress_bar(f"reading {log_path.name}", 1000) as update:
-            read = read_log(log_path, names, system_id=system_id, progress=lambda f: update(int(1000 * f), 1000))
+            read = read_log(log_path, names, system_id=system_id, gnss_latency_s=gnss_latency_s,
+                            progress=lambda f: update(int(1000 * f), 1000))  # fmt: skip
         wall_read = time.perf_counter() - wall0
         log, rep = read.log, read.report
         if len(log["imu_t_s"]) < 2:

@@ -24,6 +24,7 @@ import numpy as np
 import yaml
 
 from vdm_aero.geodesy import LocalFrame
+from vdm_aero.nav.filter import NavConfig
 
 __all__ = ["ServiceRun", "ServiceTrack", "bench_reference", "run_service_sitl", "score_service"]
 
@@ -66,6 +67,9 @@ def write_config(run: ServiceRun, work: Path, port: int, mag_field_ned_ut: tuple
                          deim_nn=str(run.deim_nn) if run.deim_nn else None)  # fmt: skip
     cfg["navigation"]["mode"] = run.mode
     cfg["navigation"]["mag_field_ned_ut"] = [float(v) for v in mag_field_ned_ut]
+    # the receiver's data-sheet latency, as its user sets GPS_DELAY_MS on the autopilot and here (what the
+    # benchmark's filters assume too)
+    cfg["navigation"]["gnss_latency_s"] = NavConfig.gnss_latency_s
     cfg["ports"]["source"] = run.ports_source
     cfg["streams"].update(dict(run.streams))
     cfg["state"]["file"] = str(work / "state" / "filter-state.npz")

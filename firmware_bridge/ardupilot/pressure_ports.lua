@@ -8,6 +8,20 @@ and the companion groups one frame by that time_boot_ms (it tolerates a 1-2 ms s
 reading is stale, faulted or not answering is sent as NaN, not left out: a missing name would hold the
 companion's frame open until its timeout, a NaN completes the frame and marks that port lost in it.
 
+Zero offset: an MS4525DO reads several to tens of Pa at zero pressure, different for every part (inside
+the datasheet's total error band, +-1 % of span). As AP_Airspeed zeroes its pitot at boot (ARSPD_OFFSET,
+AP_Airspeed::calibrate() and update_calibration()), the script zeroes every port: at its first update, after
+the startup delay, if the vehicle is not armed, it averages each port's valid readings over at least
+CAL_MIN_MS and CAL_MIN_READINGS readings, the first CAL_DISCARD left out, and subtracts that mean from every
+later reading of the port. Meanwhile every port is sent (and logged) as NaN: the readings are not yet a
+pressure difference the companion may use, and NaNs still complete each frame at the usual cadence (above).
+A port without a valid reading in the window keeps offset 0; arming during the window ends it with the
+readings so far (none: offsets 0); armed at the first update (an in-flight reboot: AP_Airspeed skips its
+calibration after a watchdog reset, which a script cannot see) there is no calibration, offsets 0. Each of
+these is said once in a warning text. VPP_SKIP_CAL = 1: no calibration, offsets 0 (the parts' own zero).
+So boot the aircraft at rest and out of the wind, taps untouched: wind on a tap or a hand on the tubing
+during the window becomes that port's offset for the whole flight.
+
 Why Lua reads the transducers itself: ArduPilot has at most 2 airspeed instances, and scripts get at most 4
 I2C handles in total (SCRIPTING_MAX_NUM_I2C_DEVICE), so this script uses ONE handle and moves it between
 addresses with set_address().
@@ -26,11 +40,17 @@ Wiring (one I2C bus, VPP_BUS; ArduPilot's bus numbering, as ARSPD_BUS):
   * No other device at 0x28 on this bus (e.g. an ARSPD_TYPE=MS4525 pitot on the same ARSPD_BUS).
 
 ArduPilot setup: SCR_ENABLE = 1, reboot; copy this file to APM/scripts/ on the SD card (MAVFTP); set the
-VPP_ parameters; reboot (VPP_BUS is read once). SCR_HEAP_SIZE: this script keeps ~11 kB (measured under
-stock Lua 5.3 after a GC; ~25 kB with GC headroom), so the board default (43 kB on small boards, 100-200 kB
-on H7 class) does for it alone; with other scripts on a small board set 65536 or more. SCR_DEBUG_OPTS bit 1
-prints each script's memory and run time on the autopilot. ~1600 VM instructions per update at 12 ports:
-far below SCR_VM_I_COUNT (10000).
+VPP_ parameters; reboot (VPP_BUS is read once; and after replacing a copy older than VPP_SKIP_CAL: the VPP_
+table grew from 8 to 9 parameters, and AP_Param cannot grow a table without a reboot).
+SCR_HEAP_SIZE: this script keeps ~31 kB of Lua heap, its compiled code included (stock Lua 5.3 under the
+test stubs, after a full GC, 12 ports; 32 ports add < 1 kB; ~1.5 kB more during the boot calibration). The
+same measurement gives ~24 kB for the script before the zero-offset calibration (mostly its code makes the
+difference); the ~11 kB quoted by earlier versions is not reproduced (it matches their data without the
+code). The H7 default (100-200 kB) does; with the 43 kB default of small boards set 65536 or more: the
+scripting engine's own tables share that heap. SCR_DEBUG_OPTS bit 1 prints each script's memory and run time
+on the autopilot: check there. VM instructions per update (the script's own; binding calls are C, which
+SCR_VM_I_COUNT does not count): ~1700 at 12 ports (~1900 while calibrating, ~2200 in the update that ends
+the calibration), ~4300 at 32 (~5400 in that update): below SCR_VM_I_COUNT (10000).
 Telemetry budget and serial settings: docs/lua-script.md in the vdm-aero repository.
 
 Written for the Lua 5.3 that ArduPilot embeds (no 5.4-only syntax); tested under lua5.3/lua5.4 with stubs.
@@ -55,14 +75,23 @@ local STATUS_STALE = 2 -- status bits (top 2 of byte 1): 0 normal, 1 reserved, 2
 local TEXT_INTERVAL_MS = 5000 -- at most one fault text per 5 s: a dead sensor must not flood the link
 local DISABLED_PERIOD_MS = 1000 -- poll VPP_ENABLE while disabled, so enabling needs no reboot
 local STARTUP_DELAY_MS = 1000 -- let the transducers power up before the first read
+-- Zero-offset calibration window, after AP_Airspeed::update_calibration() (ArduPilot libraries/AP_Airspeed/
+-- AP_Airspeed.cpp: done after >= 1 s and > 15 readings, the first 5 discarded, mean of the healthy ones):
+-- the same discard, but 2 s: at 50 Hz ~95 readings per port, so the +-1 count flicker averages to ~0.1 count
+-- (0.1 Pa at +-1 psi), and a second of ground wind or handling weighs half as much. 2 s more at boot costs
+-- nothing (arming takes far longer). At low VPP_RATE_HZ the 16 readings set the length (16 s at 1 Hz).
+local CAL_DISCARD = 5 -- first readings not averaged: the transducer settling after power-up
+local CAL_MIN_MS = 2000 -- the window lasts at least this long ...
+local CAL_MIN_READINGS = 16 -- ... and at least this many readings (the discarded ones included)
 local SEV_WARNING, SEV_INFO = 4, 6 -- MAV_SEVERITY
 local NAN = 0 / 0
 
 assert(#NAME_PREFIX + 2 <= NAME_MAX, "VPP: NAME_PREFIX too long for NAMED_VALUE_FLOAT")
 
 -- Parameters --------------------------------------------------------------------------------------------
--- 8 slots for the 8 parameters
-assert(param:add_table(PARAM_TABLE_KEY, PARAM_PREFIX, 8), "VPP: could not add param table (key in use?)")
+-- 9 slots for the 9 parameters (indices 1..9; the table had 8 before VPP_SKIP_CAL): a table's size can only
+-- grow across a reboot (AP_Param), and a new parameter must take the next index, never reuse one
+assert(param:add_table(PARAM_TABLE_KEY, PARAM_PREFIX, 9), "VPP: could not add param table (key in use?)")
 
 -- Parameter() + init() works on older firmware too (Parameter(name) came later)
 local function bind_add_param(name, idx, default_value)
@@ -130,6 +159,13 @@ local VPP_RANGE_PSI = bind_add_param("RANGE_PSI", 7, 1)
   // @Values: 0:Disabled,1:Enabled
 --]]
 local VPP_LOG = bind_add_param("LOG", 8, 1)
+--[[
+  // @Param: VPP_SKIP_CAL
+  // @DisplayName: Skip the ports' zero-offset calibration
+  // @Description: 0: at boot, if not armed, average each port for 2 s at rest and subtract that mean from it from then on (as ARSPD_OFFSET; the ports are sent as NaN meanwhile); keep the aircraft still and out of the wind, ports untouched. 1: no calibration, offsets 0 (the transducers' own zero); unlike ARSPD_SKIP_CAL there is no stored offset to fall back on
+  // @Values: 0:Calibrate at boot,1:Skip
+--]]
+local VPP_SKIP_CAL = bind_add_param("SKIP_CAL", 9, 0)
 
 -- State ---------------------------------------------------------------------------------------------------
 local names = {} -- port index (0-based) -> name, built once: no string garbage per update
@@ -146,6 +182,13 @@ local due_ms = nil -- when the current update was due; keeps a start-to-start ca
 local last_text_ms = nil
 local bad_count, bad_last = 0, "" -- bad readings since the last fault text, and the latest one
 local announced = false
+local offsets = {} -- port index -> zero offset [Pa] subtracted from every reading; 0 until calibrated
+for i = 0, MAX_PORTS - 1 do
+  offsets[i] = 0.0
+end
+local cal_due = true -- the calibration starts at the first enabled update
+local cal = nil -- while it runs: { start_ms, readings, sum = port -> Pa, n = port -> valid readings }
+local cal_texts = {} -- calibration warnings not sent yet (warn() is rate-limited), oldest first
 
 -- DataFlash: AP_Logger takes at most 14 format characters and 56 label characters from a script (it adds
 -- TimeUS); 12 ports ("P00,...,P11", 47 characters) per message. Fixed layouts: a message's format must not
@@ -233,6 +276,82 @@ local function close_muxes()
   end
 end
 
+-- Zero-offset calibration ------------------------------------------------------------------------------
+local function cal_begin()
+  cal_due = false
+  if VPP_SKIP_CAL:get() >= 0.5 then
+    return
+  end
+  if arming:is_armed() then -- as AP_Airspeed after a watchdog reset: an in-flight reboot is no time to zero
+    cal_texts[#cal_texts + 1] = "VPP: armed at start: no zero cal, offsets 0"
+    return
+  end
+  cal = { start_ms = now_ms(), readings = 0, sum = {}, n = {} }
+  for i = 0, MAX_PORTS - 1 do
+    cal.sum[i], cal.n[i] = 0.0, 0
+  end
+  gcs:send_text(SEV_INFO, "VPP: zero cal, keep the aircraft still")
+end
+
+-- Ends the calibration: offsets from the readings gathered (a port with none keeps 0, and is reported unless
+-- no reading was averaged at all: armed that early, the arming text says it), and this update's readings,
+-- taken with offset 0, corrected.
+local function cal_end()
+  local failed = {}
+  local zeroed, max_abs, max_name = 0, -1, ""
+  for i = 0, cfg.count - 1 do
+    local n = cal.n[i]
+    if n > 0 then
+      local off = cal.sum[i] / n
+      offsets[i] = off
+      values[i] = values[i] - off
+      zeroed = zeroed + 1
+      if math.abs(off) > max_abs then
+        max_abs, max_name = math.abs(off), names[i]
+      end
+    else
+      failed[#failed + 1] = names[i]
+    end
+  end
+  local averaged = cal.readings > CAL_DISCARD
+  cal = nil
+  if #failed > 0 and averaged then
+    local text = "VPP: no zero cal for " .. table.concat(failed, ",")
+    if #text > 50 then
+      text = string.format("VPP: no zero cal for %d ports, %s first", #failed, failed[1])
+    end
+    cal_texts[#cal_texts + 1] = text
+  end
+  if zeroed > 0 then
+    gcs:send_text(SEV_INFO, string.format("VPP: zeroed %d ports, max %.1f Pa %s", zeroed, max_abs, max_name))
+  end
+end
+
+-- One update's readings (values: Pa with offset 0, NaN if bad) into the running calibration.
+local function cal_step()
+  if arming:is_armed() then -- armed before the end: keep what was gathered, not this reading
+    local used = cal.readings - CAL_DISCARD
+    cal_texts[#cal_texts + 1] = used > 0 and string.format("VPP: armed, zero cal cut at %d readings", used)
+      or "VPP: armed before zero cal: offsets 0"
+    cal_end()
+    return
+  end
+  cal.readings = cal.readings + 1
+  if cal.readings > CAL_DISCARD then
+    local sum, n = cal.sum, cal.n
+    for i = 0, cfg.count - 1 do
+      local v = values[i]
+      if v == v then -- not NaN: a valid reading
+        sum[i] = sum[i] + v
+        n[i] = n[i] + 1
+      end
+    end
+  end
+  if cal.readings >= CAL_MIN_READINGS and now_ms() - cal.start_ms >= CAL_MIN_MS then
+    cal_end()
+  end
+end
+
 local function counts_to_pa(counts)
   local psi = (counts - COUNTS_AT_PMIN) * (2 * cfg.range_psi) / COUNTS_SPAN - cfg.range_psi
   return psi * PSI_TO_PA
@@ -268,6 +387,9 @@ end
 -- Update --------------------------------------------------------------------------------------------------
 local function update()
   if VPP_ENABLE:get() < 0.5 then
+    if cal ~= nil then -- disabled half way: start again, with a new arming check, when enabled
+      cal, cal_due = nil, true
+    end
     return false
   end
   read_config()
@@ -282,17 +404,28 @@ local function update()
     announced = true
     gcs:send_text(SEV_INFO, string.format("VPP: %d ports at %d ms on bus %d", cfg.count, cfg.period_ms, dev_bus))
   end
+  if cal_due then
+    cal_begin()
+  end
 
   -- all I2C first ...
   for i = 0, cfg.count - 1 do
     local pa, why = read_port(i)
-    values[i] = pa
+    values[i] = pa - offsets[i] -- NaN stays NaN
     if why ~= nil then
       bad_count = bad_count + 1
       bad_last = names[i] .. " " .. why
     end
   end
   close_muxes()
+  if cal ~= nil then
+    cal_step()
+    if cal ~= nil then -- still running: no pressure difference yet, NaN for every port (header comment)
+      for i = 0, cfg.count - 1 do
+        values[i] = NAN
+      end
+    end
+  end
   -- ... then every send back to back: one millis() for the whole frame
   for i = 0, cfg.count - 1 do
     gcs:send_named_float(names[i], values[i])
@@ -307,7 +440,11 @@ local function update()
     end
   end
 
-  if bad_count > 0 and warn(string.format("VPP: %d bad readings, last %s", bad_count, bad_last)) then
+  if cal_texts[1] ~= nil then -- a calibration warning goes out once, before the next fault summary
+    if warn(cal_texts[1]) then
+      table.remove(cal_texts, 1)
+    end
+  elseif bad_count > 0 and warn(string.format("VPP: %d bad readings, last %s", bad_count, bad_last)) then
     bad_count = 0
   end
   return true

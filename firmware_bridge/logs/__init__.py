@@ -39,14 +39,16 @@ def log_format(path: Path) -> str:
 
 
 def read_log(path: Path, port_names: Sequence[str] = (), *, system_id: int | None = None,
-             progress: Callable[[float], None] | None = None) -> LogRead:  # fmt: skip
-    """Read any supported log; ``port_names`` order the port columns (tlogs carry the ports)."""
+             gnss_latency_s: float | None = None, progress: Callable[[float], None] | None = None
+             ) -> LogRead:  # fmt: skip
+    """Read any supported log; ``port_names`` order the port columns (tlogs carry the ports);
+    ``gnss_latency_s``: a tlog's receiver latency (default: its autopilot's default)."""
     path = Path(path)
     fmt = log_format(path)
     if fmt == "tlog":
         from firmware_bridge.logs.tlog import read_tlog
 
-        return read_tlog(path, port_names, system_id=system_id, progress=progress)
+        return read_tlog(path, port_names, system_id=system_id, gnss_latency_s=gnss_latency_s, progress=progress)
     if fmt == "dataflash":
         from firmware_bridge.logs.dataflash import read_dataflash
 

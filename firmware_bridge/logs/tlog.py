@@ -18,7 +18,9 @@ message              stream
 HIGHRES_IMU          IMU (SI floats) and magnetometer (gauss → µT); preferred when present
 SCALED_IMU           IMU (mG, mrad/s) and magnetometer (mgauss) when there is no HIGHRES_IMU
 SCALED_PRESSURE      static pressure (hPa → Pa) and pitot Δp (hPa → Pa; exactly 0 = no sensor)
-GPS_RAW_INT          3-D fixes (degE7, mm, cm/s, cdeg; no vertical velocity → v_D NaN)
+GPS_RAW_INT          3-D fixes (degE7, mm, cm/s, cdeg; no vertical velocity → v_D NaN); stamped when the
+                     autopilot received the fix, so the time of validity is the stamp less the autopilot's
+                     default receiver lag (ArduPilot 0.12 s, PX4 0.11 s: units.GNSS_LATENCY_DEFAULT_S)
 SERVO_OUTPUT_RAW     PWM of servo 1–4 (ArduPlane order: aileron, elevator, throttle, rudder)
 NAMED_VALUE_FLOAT    port Δp [Pa], one message per port (the Lua script / the mock)
 DEBUG_FLOAT_ARRAY    port Δp [Pa], one message per frame (``ports_array_id``)
@@ -63,13 +65,18 @@ _NEEDED_IDS = {i for i, n in _NAMES.items() if n in _NEEDED}
 
 
 class _Reader:
-    def __init__(self, path: Path, port_names: Sequence[str], system_id: int | None, ports_array_id: int) -> None:
+    def __init__(self, path: Path, port_names: Sequence[str], system_id: int | None, ports_array_id: int,
+                 gnss_latency_s: float | None = None) -> None:  # fmt: skip
         self.path = path
         self.report = ReadReport(path=path, format="tlog", time_base="")
         self.builder = StreamBuilder(port_names)
         self.mav = mavlink2.MAVLink(None)
         self.system_id = system_id
         self.autopilot: tuple[int, int] | None = None
+        self.latency_given = gnss_latency_s
+        self.gnss_latency_s = (
+            gnss_latency_s if gnss_latency_s is not None else units.GNSS_LATENCY_DEFAULT_S["ardupilot"]
+        )
         self.ports_array_id = ports_array_id
         self.n_ports = len(port_names)
         self.assembler = PortAssembler(port_names, timeout_s=PORT_FRAME_TIMEOUT_S) if port_names else None
@@ -163,6 +170,8 @@ class _Reader:
             is_autopilot = m.autopilot != mavlink2.MAV_AUTOPILOT_INVALID and m.type not in _NOT_VEHICLES
             if self.autopilot is None and is_autopilot and self.system_id in (None, src[0]):
                 self.autopilot = src
+                if self.latency_given is None:
+                    self.gnss_latency_s = units.gnss_latency_default_s(int(m.autopilot))
             return
         if src != self.autopilot:
             self.report.skip(f"{kind} (not from the autopilot)")
@@ -188,7 +197,7 @@ class _Reader:
             if fix is None:
                 rep.skip("GPS_RAW_INT (no 3-D fix)")
                 return
-            t = fix.t_valid_s
+            t = fix.t_s - self.gnss_latency_s  # the time of validity (the log's gnss_t_s)
             if m.time_usec > UNIX_USEC_MIN:  # some autopilots stamp fixes in Unix time
                 if not self.unix_boot:
                     rep.skip("GPS_RAW_INT (Unix time before SYSTEM_TIME)")
@@ -282,14 +291,17 @@ class _Reader:
             a = np.array(self.truth)
             truth = TruthTrack(self.truth_source, a[:, 0], a[:, 1], a[:, 2], a[:, 3], None, a[:, 4:8])
         unix = float(np.median(self.unix_boot)) if self.unix_boot else None
-        log = self.builder.build(self.path, rep, meta={"autopilot": list(self.autopilot)})
+        log = self.builder.build(self.path, rep, meta={"autopilot": list(self.autopilot),
+                                                       "gnss_latency_s": self.gnss_latency_s})  # fmt: skip
         return LogRead(log, truth, rep, unix)
 
 
 def read_tlog(path: Path, port_names: Sequence[str] = (), *, system_id: int | None = None, ports_array_id: int = 0,
-              progress: Callable[[float], None] | None = None) -> LogRead:  # fmt: skip
+              gnss_latency_s: float | None = None, progress: Callable[[float], None] | None = None
+              ) -> LogRead:  # fmt: skip
     """Read a telemetry log (module docstring); ``port_names`` in the order of the returned port columns,
-    ``system_id`` the autopilot's (default: the first autopilot heard)."""
-    r = _Reader(Path(path), port_names, system_id, ports_array_id)
+    ``system_id`` the autopilot's (default: the first autopilot heard); ``gnss_latency_s`` the receiver latency
+    between a fix's validity and its GPS_RAW_INT stamp (default: the autopilot's default; in ``meta``)."""
+    r = _Reader(Path(path), port_names, system_id, ports_array_id, gnss_latency_s)
     r.read(progress)
     return r.result()

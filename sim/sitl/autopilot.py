@@ -19,7 +19,7 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from types import TracebackType
 from typing import TypedDict
@@ -322,6 +322,10 @@ class MockAutopilot:
         st.gnss = None if tick.gnss_outage else (tick.gnss or st.gnss)
         if self._options.faults is not None and tick.gnss is not None and st.gnss is not None:
             st.gnss = self._options.faults.gnss(tick.gnss, truth.t_s, self._frame)
+        if tick.gnss is not None and st.gnss is not None:
+            # GPS_RAW_INT.time_usec is when the autopilot received the fix (AP_GPS::send_mavlink_gps_raw sends
+            # last_fix_time_ms; PX4 its sensor_gps timestamp), not the receiver's time of validity
+            st.gnss = replace(st.gnss, t_s=truth.t_s)
         st.baro = tick.baro or st.baro
         st.mag = tick.mag or st.mag
         st.airspeed = tick.airspeed or st.airspeed

@@ -61,6 +61,7 @@ TURBULENCE_SIGMA_BOUNDS_M_S: Final = (0.15, 4.0)  # calm air's air-data noise â€
 TURBULENCE_AFTER_S: Final = 30.0  # aided time before the turbulence estimate starts (the wind has converged)
 GNSS_TIMEOUT_S: Final = 1.0
 GNSS_RESET_S: Final = 10.0
+GNSS_LOCKOUT_S: Final = 10.0  # every fix rejected this long outside an outage: the pose is wrong, start again
 NIS_WINDOW: Final = 1000
 PORT_STALE_S: Final = 0.5  # no port frame this long: fallback, as for frames without air data
 GAP_COAST_MAX_S: Final = 2.0  # a longer IMU gap with GNSS at hand re-initialises the pose at the next fix
@@ -242,6 +243,7 @@ class NavFilter:
         self._buffer: deque[tuple[float, F64Array, F64Array]] = deque(maxlen=round(BUFFER_S * config.filter_rate_hz))
         self._last_gnss_s = -math.inf
         self._pos_rejected_since: float | None = None
+        self._all_rejected_since: float | None = None
         self._next_aid: dict[str, float] = {}
         self._consider = np.zeros(N_ERR, dtype=bool)
         for k in ("wind", "bm", "baro", "gnss", "aero"):
@@ -381,13 +383,37 @@ class NavFilter:
             p = np.diag(self.engine.P)[IDX["gust"]]
             self.process.set_gust_sigma(self.turbulence.observe(x.gust_ned, p, inc.dt_s))
 
-    def _drop_pose(self, gap_s: float) -> None:
+    def _drop_pose(self, gap_s: float, *, count: bool = True) -> None:
         """An IMU gap longer than GAP_COAST_MAX_S with GNSS at hand: forget the pose (it would be a guess),
         keep the slow states, and initialise again at the next fix as at the start."""
         self._carried = self.slow_states()
         self.x, self.engine = None, None
         self._buffer.clear()
-        self.counts["imu_gaps_reinitialised"] = self.counts.get("imu_gaps_reinitialised", 0) + 1
+        if count:
+            self.counts["imu_gaps_reinitialised"] = self.counts.get("imu_gaps_reinitialised", 0) + 1
+
+    def imu_recalibrated(self) -> None:
+        """The autopilot rebooted: it measured new gyro offsets at boot (ArduPilot INS_GYR_CAL, PX4's
+        startup calibration) and a power cycle redraws the IMU's turn-on biases, so the bias estimates no longer
+        hold: back to their turn-on Ïƒ (the pose's own uncertainty grows over the reboot's gap)."""
+        sig = {"bg": self.config.gyro_bias_sigma_rad_s, "ba": self.config.accel_bias_sigma_m_s2}
+        if self.engine is not None:
+            p = self.engine.P
+            for k, s in sig.items():
+                i = IDX[k]
+                p[i, :] = 0.0
+                p[:, i] = 0.0
+                p[i, i] = np.eye(i.stop - i.start) * s**2
+            self.engine.P = p
+        elif self._carried is not None:
+            cov = self._carried[1]
+            idx = list(slow_index())
+            for k, s in sig.items():
+                j = [idx.index(n) for n in range(IDX[k].start, IDX[k].stop)]
+                cov[j, :] = 0.0
+                cov[:, j] = 0.0
+                cov[j, j] = s**2
+        self.counts["imu_recalibrated"] = self.counts.get("imu_recalibrated", 0) + 1
 
     # ------------------------------------------------------------------------------- slow states
     def slow_states(self) -> tuple[F64Array, F64Array]:
@@ -399,23 +425,29 @@ class NavFilter:
         idx = slow_index()
         return values.astype(np.float64), self.engine.P[np.ix_(idx, idx)].copy()
 
-    def restore_slow_states(self, values: F64Array, cov: F64Array, *, keep_wind: bool) -> list[str]:
+    def restore_slow_states(self, values: F64Array, cov: F64Array, *, keep_wind: bool, keep_aero: bool = True
+                            ) -> list[str]:  # fmt: skip
         """Put slow states into an initialised filter, independent of its new pose; returns the names
-        restored (the wind only with ``keep_wind``: an old wind is worse than none)."""
+        restored (the wind only with ``keep_wind``: an old wind is worse than none; the model corrections only
+        with ``keep_aero``: they correct the models they were estimated with)."""
         assert self.x is not None and self.engine is not None
         v = np.asarray(values, dtype=np.float64)
         idx = slow_index()
         x = self.x
         x.b_gyro_b, x.b_accel_b = v[0:3].copy(), v[3:6].copy()
-        restored = ["bg", "ba", "bm", "baro", "aero"]
+        restored = ["bg", "ba", "bm", "baro"]
         if keep_wind:
             x.wind_ned = v[6:9].copy()
             restored.insert(2, "wind")
-        x.b_mag_b_ut, x.b_baro_m, x.aero = v[9:12].copy(), float(v[12]), v[13:].copy()
+        x.b_mag_b_ut, x.b_baro_m = v[9:12].copy(), float(v[12])
+        if keep_aero:
+            x.aero = v[13:].copy()
+            restored.append("aero")
         p = self.engine.P
         old = p[np.ix_(idx, idx)]
         wind = np.isin(idx, np.arange(IDX["wind"].start, IDX["wind"].stop))
-        take = ~wind | keep_wind
+        aero = np.isin(idx, np.arange(IDX["aero"].start, IDX["aero"].stop))
+        take = (~wind | keep_wind) & (~aero | keep_aero)
         p[np.ix_(idx, idx)] = np.where(np.outer(take, take), cov, np.where(np.outer(~take, ~take), old, 0.0))
         others = np.setdiff1d(np.arange(p.shape[0]), idx)
         p[np.ix_(idx, others)] = 0.0  # the restored states are independent of the new pose
@@ -524,6 +556,19 @@ class NavFilter:
             past,
             consider=np.zeros(N_ERR, dtype=bool),
         )
+        if pos.accepted or vel.accepted or was_outage:
+            self._all_rejected_since = None
+        elif self._all_rejected_since is None:
+            self._all_rejected_since = t_s
+        elif t_s - self._all_rejected_since > GNSS_LOCKOUT_S:
+            # position and velocity both rejected for this long with GNSS healthy: the filter's own pose is
+            # what is wrong (an autopilot reboot mid-turn, a state restored into another flight), and its
+            # confident covariance gates out the fixes that would correct it. Fixes are never locked out for
+            # good: forget the pose, keep the slow states, initialise again from this fix
+            self.counts["gnss_lockout_reinitialised"] = self.counts.get("gnss_lockout_reinitialised", 0) + 1
+            self._all_rejected_since = None
+            self._drop_pose(0.0, count=False)
+            return
         if pos.accepted:
             self._pos_rejected_since = None
         elif was_outage:  # reacquisition after an outage: the fix wins over the dead-reckoned position

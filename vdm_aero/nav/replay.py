@@ -111,8 +111,10 @@ def replay_log(
     frame = LocalFrame(*origin)
     imu_hz = 1.0 / float(np.median(np.diff(log["imu_t_s"])))
     rate = min(MAX_FILTER_RATE_HZ, imu_hz)
+    # a fix arrives its receiver latency after its time of validity: the reader's, when it had to assume one
+    latency = float(log.meta.get("gnss_latency_s", NavConfig.gnss_latency_s))
     cfg = NavConfig(vehicle=vehicle, origin_alt_m=origin[2], mag_field_ned_ut=np.asarray(mag_field_ned_ut, float),
-                    filter_rate_hz=rate, aiding_rate_hz=min(10.0, rate))  # fmt: skip
+                    filter_rate_hz=rate, aiding_rate_hz=min(10.0, rate), gnss_latency_s=latency)  # fmt: skip
     stream = NavStream.from_log(log, vehicle, frame, filter_rate_hz=rate, gnss_latency_s=cfg.gnss_latency_s)
     fe = None
     if models is not None and any(m in _PORT_MODES for m in modes):

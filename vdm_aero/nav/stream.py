@@ -140,6 +140,7 @@ class LogRunner:
         self.t_s = -math.inf
         self.gnss_blocked: list[tuple[float, float]] = []
         self.mag_blocked: list[tuple[float, float]] = []
+        self.baro_blocked: list[tuple[float, float]] = []
 
     @property
     def filters(self) -> dict[str, NavFilter]:
@@ -155,6 +156,7 @@ class LogRunner:
         out.driver = copy.deepcopy(self.driver, memo)
         out.gnss_blocked = list(self.gnss_blocked)
         out.mag_blocked = list(self.mag_blocked)
+        out.baro_blocked = list(self.baro_blocked)
         return out
 
     def block_gnss(self, start_s: float, end_s: float) -> None:
@@ -162,9 +164,14 @@ class LogRunner:
         self.gnss_blocked.append((start_s, end_s))
 
     def block_mag(self, start_s: float, end_s: float) -> None:
-        """Drop every magnetometer sample in [start_s, end_s) (the benchmark's free-inertial reference: nothing
-        but the IMU and the barometer through an outage)."""
+        """Drop every magnetometer sample in [start_s, end_s) (with :meth:`block_baro`, the benchmark's
+        free-inertial reference: nothing but the IMU through an outage)."""
         self.mag_blocked.append((start_s, end_s))
+
+    def block_baro(self, start_s: float, end_s: float) -> None:
+        """Drop every barometer sample in [start_s, end_s) (in turns the barometer sees the tilt through the
+        vertical channel: a free INS has none)."""
+        self.baro_blocked.append((start_s, end_s))
 
     def _gnss_ok(self, t_valid: float) -> bool:
         return not any(a <= t_valid < b for a, b in self.gnss_blocked)
@@ -189,7 +196,8 @@ class LogRunner:
                 if self._gnss_ok(tv):
                     d.gnss(tv, t, s.gnss_p_ned_m[i], s.gnss_v_ned_m_s[i])
             elif kind == _BARO:
-                d.baro(t, float(s.baro_pa[i]))
+                if not any(a <= t < b for a, b in self.baro_blocked):
+                    d.baro(t, float(s.baro_pa[i]))
             elif kind == _MAG:
                 if not any(a <= t < b for a, b in self.mag_blocked):
                     d.mag(t, s.mag_b_ut[i])
