@@ -128,6 +128,7 @@ class CompanionService:
         self.store = FilterStateStore(cfg.state_file)
         self._saved = self.store.load()
         self.models_id = models_identity(cfg)
+        self._fdi_reported = 0
         self._t_initialised_s = math.inf
         self.transport = open_transport(cfg.connection)
         self.ep = MavEndpoint(self.transport, system_id=cfg.system_id, component_id=cfg.component_id,
@@ -381,6 +382,17 @@ class CompanionService:
         self.driver = NavDriver({self.cfg.mode: self.filter}, fe)
         self._print(f"vdm-aero serve: origin {fix.lat_deg:.7f}, {fix.lon_deg:.7f}, {fix.alt_m:.1f} m")
 
+    def _report_fdi(self) -> None:
+        """Each air-data FDI status change once, in the journal (with the autopilot time of the change)."""
+        f = self.filter
+        if f is None or f.fdi is None:
+            return
+        for e in f.fdi.events[self._fdi_reported :]:
+            what = "excluded: it disagrees with the others" if e.what == "excluded" else "re-admitted: it agrees again"
+            self._print(f"vdm-aero serve: air data: {e.source} {what} (NIS/dim {e.nis_per_dim:.1f}, "
+                        f"boot time {self.clock.boot_s(e.t_s):.1f} s)")  # fmt: skip
+        self._fdi_reported = len(f.fdi.events)
+
     def _check_finite(self) -> None:
         f = self.filter
         if f is None or f.x is None:
@@ -504,12 +516,17 @@ class CompanionService:
             self.stats.named_values_sent += 1
 
     def _health_code(self) -> int:
-        """Bit field: 1 initialised, 2 GNSS outage, 4 fallback (no port air data), 8 ports missing."""
+        """Bit field: 1 initialised, 2 GNSS outage, 4 fallback (no port air data), 8 ports missing; the air-data
+        sources the FDI has excluded (mode vdm): 16 pitot, 32 port air data, 64 force model."""
         f = self.filter
         if f is None or not f.initialised:
             return 0
         ok, n = f.port_health
-        return 1 | (2 if f.in_outage else 0) | (4 if f.fallback else 0) | (8 if ok < n else 0)
+        code = 1 | (2 if f.in_outage else 0) | (4 if f.fallback else 0) | (8 if ok < n else 0)
+        for bit, source in ((16, "pitot"), (32, "ports"), (64, "force")):
+            if f.fdi is not None and not f.fdi.fused(source):
+                code |= bit
+        return code
 
     def _send_solution(self, now: float) -> None:
         o = self.cfg.outputs
@@ -542,6 +559,7 @@ class CompanionService:
     def _upkeep(self, now: float) -> None:
         if (fr := self.assembler.expire(now)) is not None:
             self._port_frame(fr)
+        self._report_fdi()
         if self._due("heartbeat", now, HEARTBEAT_S):
             hb = self.ep.mav.heartbeat_encode(mavlink2.MAV_TYPE_ONBOARD_CONTROLLER, mavlink2.MAV_AUTOPILOT_INVALID,
                                               0, 0, mavlink2.MAV_STATE_ACTIVE)  # fmt: skip

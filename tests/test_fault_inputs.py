@@ -945,7 +945,7 @@ def test_mutated_configs_load_or_fail_in_one_line(tmp_path: Path, tried: dict[st
         text.replace("deim: deim", "deim: " + "a" * 5000),
         text.replace("deim: deim", 'deim: "a\\nb"'),
         text + "system_id: 7\n",
-        text.replace("  mode: vdm-deim-nn", "  mode: !!python/name:os.system vdm-deim-nn"),
+        text.replace("  mode: vdm\n", "  mode: !!python/name:os.system vdm\n"),
     ):
         err = attempt(nasty.encode())
         assert err is not None, nasty[:80]
@@ -1102,7 +1102,7 @@ def test_tampered_models_are_refused_at_start(model_set: Path, tmp_path: Path, c
     intact = tmp_path / "intact"
     shutil.copytree(model_set, intact)
     rc, out, err = _check_config(intact / "config.yaml", capsys)
-    assert rc == 0 and err == "" and "ok (vdm-deim-nn, 12 ports" in out, (out, err)
+    assert rc == 0 and err == "" and "ok (vdm, 12 ports" in out, (out, err)
     svc = CompanionService(load_config(intact / "config.yaml"), out=io.StringIO())
     _close(svc)
     for name, (victim, damage) in TAMPER.items():

@@ -319,3 +319,42 @@ def test_bench_json_prints_json_only(monkeypatch: pytest.MonkeyPatch, capsys: py
     doc = json.loads(out.out)  # nothing but the JSON on stdout
     assert set(doc["summary"]) == {"harsh/survey/60", "kind/survey/60"}
     assert "wrote" in out.err
+
+
+def test_fdi_summary_counts_detections_and_false_alarms() -> None:
+    runs = [
+        {"fdi_events": [[4.4, "pitot", "excluded"]], "recorded_s": [-200.0, 320.0]},
+        {"fdi_events": [[-50.0, "force", "excluded"], [45.1, "pitot", "excluded"]], "recorded_s": [-150.0, 320.0]},
+        {"fdi_events": [], "recorded_s": [-160.0, 320.0]},
+    ]
+    got = nav_bench.fdi_summary(runs, faulty=True)
+    assert got["fdi_detect_s"] == [4.4, 45.1, None]
+    assert got["fdi_detect_median_s"] == pytest.approx((4.4 + 45.1) / 2)
+    assert got["fdi_flagged_10s"] == pytest.approx(1 / 3)
+    # healthy flight is what came before the fault: one false alarm in 510 s
+    assert got["fdi_false_alarms"] == 1 and got["fdi_healthy_h"] == pytest.approx(510.0 / 3600.0)
+    healthy = nav_bench.fdi_summary(runs[:1], faulty=False)
+    assert healthy["fdi_false_alarms"] == 1 and healthy["fdi_healthy_h"] == pytest.approx(520.0 / 3600.0)
+
+
+def test_product_bars_judge_vdm_against_the_autopilots_baselines() -> None:
+    def st(m: float, **kw: Any) -> dict[str, Any]:
+        return {"median_m": m, **kw}
+
+    summary = {
+        "harsh/survey/300": {"ins": st(1700.0), "airspeed-dr": st(150.0),
+                             "vdm": st(125.0, fdi_false_alarms=0, fdi_healthy_h=0.5)},
+        "harsh/pitot-icing/300": {"ins": st(1700.0), "airspeed-dr": st(780.0),
+                                  "vdm": st(190.0, fdi_false_alarms=1, fdi_healthy_h=0.2, fdi_flagged_10s=0.5,
+                                            fdi_detect_median_s=26.0)},
+        "harsh/wind-shear/300": {"ins": st(2000.0), "airspeed-dr": st(2200.0), "vdm": st(2150.0)},
+    }  # fmt: skip
+    got = {b: (m, ok) for b, m, ok, _ in nav_bench.product_bars(summary)}
+    assert got["harsh survey 300 s: vdm ≤ 1.05× the best of ins and airspeed-dr"] == ("125 / 150 m = 0.83×", True)
+    assert got["harsh survey 300 s: ins ≥ 10× vdm"] == ("13.6×", True)
+    assert got["harsh pitot-icing 300 s: vdm ≤ 0.5× airspeed-dr"] == ("0.24×", True)
+    assert got["harsh pitot-icing 300 s: vdm ≤ 1.3× its healthy survey"] == ("1.52×", False)
+    assert got["harsh pitot-icing 300 s: vdm flags the pitot within 10 s of the fault (≥ 90 % of seeds)"] == (
+        "50 % (median 26.0 s)", False)  # fmt: skip
+    assert got["harsh wind-shear 300 s: vdm ≤ 0.5× airspeed-dr and ≤ 1.0× ins"] == ("0.98× / 1.07×", False)
+    assert got["vdm: FDI false alarms < 1 per 10 h of healthy flight"] == ("1 in 0.70 h", False)

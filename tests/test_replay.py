@@ -135,7 +135,7 @@ def test_a_log_without_ports_runs_the_port_free_modes_and_says_so(
     assert rc == 0, err
     doc = json.loads(out)
     assert doc["modes"] == ["ins", "airspeed-dr"]
-    assert set(doc["skipped_modes"]) == {"ports-airdata", "vdm-classic", "vdm-deim", "vdm-deim-nn"}
+    assert set(doc["skipped_modes"]) == {"ports-airdata", "vdm-classic", "vdm-deim", "vdm-deim-nn", "vdm"}
     assert "ports-airdata not run: the log has no port values" in err
     assert doc["log"]["unknown"]["NAMED_VALUE_FLOAT (no port names given)"] > 0
     assert math.isfinite(doc["outages"][0]["modes"]["airspeed-dr"]["final_error_m"])

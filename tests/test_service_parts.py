@@ -181,7 +181,7 @@ def _config(tmp_path: Path, edit: dict[str, object] | None = None) -> Path:
 
 def test_shipped_config_reads(tmp_path: Path) -> None:
     cfg = load_config(_config(tmp_path))
-    assert cfg.mode == "vdm-deim-nn" and cfg.deim_model == tmp_path / "deim"
+    assert cfg.mode == "vdm" and cfg.deim_model == tmp_path / "deim"
     assert cfg.streams["HIGHRES_IMU"] == 400 and cfg.outputs.solution == "gps_input"
 
 

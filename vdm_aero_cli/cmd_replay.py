@@ -79,7 +79,7 @@ def _floats(text: str, n: int, what: str) -> list[float]:
 # CPU per mode relative to ins, and of the port front end a group shares, measured on the mock survey tlog
 # (400 Hz IMU, 12 ports at 50 Hz): what the modes are dealt to processes by
 MODE_COST: Final = {"ins": 1.0, "airspeed-dr": 1.4, "ports-airdata": 1.4, "vdm-classic": 1.8, "vdm-deim": 1.8,
-                    "vdm-deim-nn": 1.9}  # fmt: skip
+                    "vdm-deim-nn": 1.9, "vdm": 2.3}  # fmt: skip
 FRONT_END_COST: Final = 0.8
 
 
@@ -93,7 +93,7 @@ def mode_groups(modes: tuple[str, ...], jobs: int) -> list[tuple[str, ...]]:
 
     def load(g: list[str], extra: str | None = None) -> float:
         ms = [*g, extra] if extra else g
-        ports = any(m in ("ports-airdata", "vdm-deim", "vdm-deim-nn") for m in ms)
+        ports = any(m in ("ports-airdata", "vdm-deim", "vdm-deim-nn", "vdm") for m in ms)
         return sum(MODE_COST.get(m, 2.0) for m in ms) + (FRONT_END_COST if ports else 0.0)
 
     for m in sorted(modes, key=lambda m: -MODE_COST.get(m, 2.0)):

@@ -393,6 +393,11 @@ def _metrics(rows: list[tuple[Any, ...]], truth: dict[str, F64Array], t0: float,
         "reacquisition_jump_m": jump,
         "fallback": f.fallback,
         "rejected": dict(f.rejected),
+        # the air-data FDI's status changes, in seconds from the outage start (a fault starts there)
+        "fdi_events": [[round(e.t_s - t0, 2), e.source, e.what] for e in fdi.events]
+        if (fdi := getattr(f, "fdi", None))
+        else None,
+        "recorded_s": [round(float(t[0] - t0), 2), round(float(t[-1] - t0), 2)] if len(t) else [0.0, 0.0],
         "error_curve": {"t_s": (t[inside] - t0).round(2).tolist(), "e_m": e_h[inside].round(2).tolist()},
     }
 
@@ -536,7 +541,34 @@ def summarise(rows: list[dict[str, Any]], spec: BenchSpec) -> dict[str, Any]:
                 "cpu_s_per_flight_s": float(np.median([r["filter_cpu_s_per_flight_s"][key] for r in runs])),
                 "seeds": len(ms),
             }
+            if ms[0].get("fdi_events") is not None:
+                per[m] |= fdi_summary(ms, faulty=SCENARIOS[sc][3] is not None and sc.startswith("pitot-"))
         out[f"{world}/{sc}/{key}"] = per
+    return out
+
+
+DETECT_BAR_S: Final = 10.0
+
+
+def fdi_summary(ms: Sequence[dict[str, Any]], *, faulty: bool) -> dict[str, Any]:
+    """The air-data FDI over the seeds of one scenario and outage: the pitot's time to exclusion after the fault
+    starts (at the outage start), the share of seeds flagged within :data:`DETECT_BAR_S`, and the exclusions of
+    healthy flight (before a fault, or all of a healthy scenario's flight) over its hours."""
+    detect, false_alarms, healthy_s = [], 0, 0.0
+    for x in ms:
+        ev = x["fdi_events"] or []
+        t0, t1 = x["recorded_s"]
+        healthy_s += -t0 if faulty else t1 - t0
+        false_alarms += sum(1 for t, s, w in ev if w == "excluded" and (t < 0.0 or not faulty))
+        if faulty:
+            hits = [t for t, s, w in ev if s == "pitot" and w == "excluded" and t >= 0.0]
+            detect.append(hits[0] if hits else math.nan)
+    out: dict[str, Any] = {"fdi_false_alarms": false_alarms, "fdi_healthy_h": healthy_s / 3600.0}
+    if faulty:
+        d = np.array(detect)
+        out |= {"fdi_detect_s": [None if math.isnan(v) else v for v in d.tolist()],
+                "fdi_detect_median_s": float(np.nanmedian(d)) if np.isfinite(d).any() else math.nan,
+                "fdi_flagged_10s": float(np.mean(np.nan_to_num(d, nan=np.inf) <= DETECT_BAR_S))}  # fmt: skip
     return out
 
 
@@ -737,6 +769,7 @@ def bars(summary: dict[str, Any], theory: Sequence[dict[str, Any]] = ()) -> list
                         "the held wind is the weak point of every air-data mode",
                     )
                 )
+    out += product_bars(summary)
     for th in theory:
         lo, hi = th["calibrated_start_median_m"], th["theory_median_m"]
         out.append((f"{th['world']} {th['imu_part']} {th['outage_s']:g} s: free INS within 2× of the data sheet's "
@@ -761,6 +794,61 @@ def bars(summary: dict[str, Any], theory: Sequence[dict[str, Any]] = ()) -> list
         cpu = max(st["cpu_s_per_flight_s"] for _, st in keyed)
         out.append((f"{mode}: ≥ {SPEED_BAR_X_REAL_TIME:g}× real time (benchmark run, per mode, front end shared)",
                     f"{1.0 / cpu:.0f}×", 1.0 / cpu >= SPEED_BAR_X_REAL_TIME, "a shared, noisy machine"))  # fmt: skip
+    return out
+
+
+PRODUCT: Final = "vdm"
+HEALTHY_SCENARIOS: Final = ("survey", "survey-calm", "loiter", "manoeuvring")
+
+
+def product_bars(summary: dict[str, Any]) -> list[tuple[str, str, bool, str]]:
+    """Issue 22's bars for the product mode (when the run has it): never worse than what the autopilot has,
+    better when the pitot fails or the wind changes, an order of magnitude over inertial coasting, and an FDI
+    that flags a failed pitot fast without crying wolf in healthy flight."""
+    out: list[tuple[str, str, bool, str]] = []
+    v, dr = PRODUCT, "airspeed-dr"
+
+    def med(key: str, mode: str) -> float | None:
+        return summary.get(key, {}).get(mode, {}).get("median_m")
+
+    false_alarms, hours = 0, 0.0
+    for key, per in summary.items():
+        if v not in per or key.startswith("only:"):
+            continue
+        w, sc, length = key.split("/")
+        a, b, ins = med(key, v), med(key, dr), med(key, "ins")
+        false_alarms += per[v].get("fdi_false_alarms", 0)
+        hours += per[v].get("fdi_healthy_h", 0.0)
+        if a is not None and b is not None and ins is not None:
+            best = min(b, ins)
+            out.append((f"{w} {sc} {length} s: {v} ≤ 1.05× the best of ins and {dr}",
+                        f"{a:.0f} / {best:.0f} m = {a / best:.2f}×", a <= 1.05 * best,
+                        "the same flights; a median of few seeds"))  # fmt: skip
+        if sc.startswith("pitot-") and length in ("120", "300") and a is not None and b is not None:
+            out.append((f"{w} {sc} {length} s: {v} ≤ 0.5× {dr}", f"{a / b:.2f}×", a <= 0.5 * b,
+                        f"{dr} reads the failed pitot; a fault too mild to matter passes"))  # fmt: skip
+            healthy = med(f"{w}/survey/{length}", v)
+            if healthy is not None:
+                out.append((f"{w} {sc} {length} s: {v} ≤ 1.3× its healthy survey", f"{a / healthy:.2f}×",
+                            a <= 1.3 * healthy, "the same flights with and without the fault"))  # fmt: skip
+            flagged = per[v].get("fdi_flagged_10s")
+            if flagged is not None:
+                out.append((f"{w} {sc} {length} s: {v} flags the pitot within {DETECT_BAR_S:g} s of the fault (≥ 90 % "
+                            "of seeds)", f"{100 * flagged:.0f} % (median {per[v]['fdi_detect_median_s']:.1f} s)",
+                            flagged >= 0.9, "the fault starts at the outage start; a slow icing ramp may be "
+                            "harmless for its first seconds"))  # fmt: skip
+        if sc in ("wind-shear", "rtl-wind-gradient") and length == "300" and None not in (a, b, ins):
+            assert a is not None and b is not None and ins is not None
+            out.append((f"{w} {sc} 300 s: {v} ≤ 0.5× {dr} and ≤ 1.0× ins", f"{a / b:.2f}× / {a / ins:.2f}×",
+                        a <= 0.5 * b and a <= ins, "the held wind is what a wind change breaks"))  # fmt: skip
+        if sc == "survey" and length == "300" and a is not None and ins is not None:
+            out.append((f"{w} survey 300 s: ins ≥ 10× {v}", f"{ins / a:.1f}×", ins >= 10.0 * a,
+                        "the harsh world's INS; a kind IMU would shrink the ratio"))  # fmt: skip
+    if hours > 0.0:
+        rate = false_alarms / hours
+        out.append((f"{v}: FDI false alarms < 1 per 10 h of healthy flight",
+                    f"{false_alarms} in {hours:.2f} h", rate < 0.1,
+                    "few hours: zero alarms in under 10 h cannot show the rate is below 1 per 10 h"))  # fmt: skip
     return out
 
 

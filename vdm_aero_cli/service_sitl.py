@@ -40,7 +40,7 @@ class ServiceRun:
     design_data: Path
     deim: Path
     deim_nn: Path | None
-    mode: str = "vdm-deim-nn"
+    mode: str = "vdm"
     scenario: str = "survey"
     seed: int = 0
     outage_s: float = 60.0
@@ -221,6 +221,7 @@ def score_service(result: dict[str, Any]) -> dict[str, Any]:
     i_end = int(np.flatnonzero(boot < b)[-1]) if (boot < b).any() else -1
     out: dict[str, Any] = {
         "final_error_m": float(err[i_end]) if i_end >= 0 and boot[i_end] > b - 0.5 else math.nan,
+        "sigma_h_end_m": float(tr.sigma_h_m[i_end]) if i_end >= 0 else math.nan,  # the σ the service reported
         "max_error_m": float(err[inside].max()) if inside.any() else math.nan,
         "log_rows": len(boot),
         # 2 s after the outage: the first fixes must have pulled the position back (no overshoot, no rejection)

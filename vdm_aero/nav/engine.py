@@ -57,6 +57,14 @@ class EkfEngine:
         kf.Q = qd
         kf.predict()
 
+    def nis(self, innovation: F64Array, h: F64Array, r: F64Array) -> float:
+        """The normalised innovation squared yᵀS⁻¹y of a measurement, S = HPHᵀ + R, without fusing it."""
+        s = h @ self._kf.P @ h.T + r
+        try:
+            return float(innovation @ np.linalg.solve(s, innovation))
+        except np.linalg.LinAlgError:
+            return float("inf")
+
     def update(
         self,
         innovation: F64Array,

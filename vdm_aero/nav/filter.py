@@ -24,6 +24,7 @@ from __future__ import annotations
 import copy
 import math
 from collections import deque
+from collections.abc import Collection
 from dataclasses import dataclass, field
 from typing import Any, Final
 
@@ -31,6 +32,7 @@ import numpy as np
 
 from vdm_aero._typing import BoolArray, F64Array
 from vdm_aero.atmosphere import G0_M_S2, density_kg_m3, pressure_altitude_m
+from vdm_aero.nav.airdata_fdi import PAIR_MAX_AGE_S, WIND_CHANGE_M_S, WIND_RELEARN_S, AirDataFdi, WindChangeDetector
 from vdm_aero.nav.contracts import ImuIncrement, Measurement
 from vdm_aero.nav.design_fit import StabilityDerivatives
 from vdm_aero.nav.engine import EkfEngine, UpdateResult
@@ -48,7 +50,7 @@ from vdm_aero.nav.measurements import (
     SyntheticSideslip,
 )
 from vdm_aero.nav.ports_frontend import PortFrame
-from vdm_aero.nav.state import AERO_PARAMS, AERO_PRIOR, IDX, N_ERR, NavState
+from vdm_aero.nav.state import AERO_PARAMS, AERO_PRIOR, AERO_SLOT, IDX, N_ERR, NavState
 from vdm_aero.rotation import dcm_from_quat, quat_from_euler
 from vdm_aero.vehicle import VehicleDescription
 
@@ -79,8 +81,19 @@ class ModeSpec:
     pitot: bool = False
     sideslip: bool = False
     ports_airdata: bool = False
-    force: str | None = None  # "classic" or the name of a port aero model ("deim", "deim-nn")
+    force: str | None = None  # "classic", the name of a port aero model ("deim", "deim-nn"), or "best" of those
+    fdi: bool = False  # air-data fault detection and isolation (vdm_aero.nav.airdata_fdi)
+    # the wind's noise grows with the height rate, and in an outage a wind change the air data agree on is
+    # relearnt (the FDI's wind event) instead of held
+    wind_relearn: bool = False
     description: str = ""
+
+    def force_model(self, available: Collection[str]) -> str | None:
+        """The port force model to fuse among those a frame carries (``best``: the calibrated net if there is
+        one, else the plain DEIM)."""
+        if self.force == "best":
+            return next((m for m in ("deim-nn", "deim") if m in available), None)
+        return self.force if self.force in available else None
 
 
 SLOW_STATES: Final = ("bg", "ba", "wind", "bm", "baro", "aero")
@@ -101,7 +114,17 @@ MODES: Final = {
     "vdm-classic": ModeSpec(pitot=True, force="classic", description="pitot + polynomial stability derivatives"),
     "vdm-deim": ModeSpec(ports_airdata=True, force="deim", description="port air data + the DEIM force model"),
     "vdm-deim-nn": ModeSpec(ports_airdata=True, force="deim-nn", description="port air data + DEIM + calibrated net"),
+    "vdm": ModeSpec(
+        pitot=True,
+        ports_airdata=True,
+        force="best",
+        fdi=True,
+        wind_relearn=True,
+        description="the product: pitot + port air data + force model, air-data FDI, wind relearnt",
+    ),
 }
+WIND_PSCALE: Final = 0.5  # wind noise × (1 + WIND_PSCALE·|ḣ|): EKF2/EKF3's WIND_PSCALE (default 0.5 per m/s)
+WIND_RELEARN_SIGMA_M_S: Final = (3.0, 3.0, 0.5)  # the wind's σ reset on a wind event: a shear's size (N, E, D)
 
 
 @dataclass(frozen=True)
@@ -248,6 +271,14 @@ class NavFilter:
         self._consider = np.zeros(N_ERR, dtype=bool)
         for k in ("wind", "bm", "baro", "gnss", "aero"):
             self._consider[IDX[k]] = True
+        self._wind_live = self._consider.copy()
+        self._wind_live[IDX["wind"]] = False
+        self._wind_live_until_s = -math.inf
+        self.fdi = AirDataFdi() if self.spec.fdi else None
+        self.wind_change = WindChangeDetector() if self.spec.wind_relearn else None
+        if self.spec.wind_relearn:
+            self.process.wind_height_rate_scale = WIND_PSCALE
+        self._ports_speed: tuple[float, float, float] | None = None  # (t [s], V [m/s], σ_V [m/s]) of the ports
         self.fallback = False
         self.port_health = (0, 0)
         self.counts: dict[str, int] = {}
@@ -275,6 +306,9 @@ class NavFilter:
         out.adaptive = copy.deepcopy(self.adaptive, memo)
         out.turbulence = copy.deepcopy(self.turbulence, memo)
         out.process = copy.deepcopy(self.process, memo)  # its gust intensity is the branch's own
+        out.fdi = copy.deepcopy(self.fdi, memo)  # the air-data FDI's levels, exclusions and history
+        out.wind_change = copy.deepcopy(self.wind_change, memo)
+        out._carried = copy.deepcopy(self._carried, memo)
         return out
 
     # ------------------------------------------------------------------------------------- status
@@ -309,6 +343,7 @@ class NavFilter:
             "gust_sigma_m_s": [round(float(v), 3) for v in self.process.gust_sigma_m_s],
             "updates": dict(self.counts),
             "rejected": dict(self.rejected),
+            "airdata_excluded": self.fdi.excluded() if self.fdi is not None else [],
         }
 
     # -------------------------------------------------------------------------------- initialise
@@ -370,7 +405,10 @@ class NavFilter:
         x = self.x
         phi = self.process.transition(x, inc)
         qd = self.process.noise(x, inc)
+        v0 = x.v_ned.copy() if self.wind_change is not None else None
         self.process.propagate_inplace(x, inc)
+        if self.wind_change is not None and v0 is not None:
+            self.wind_change.ins_step(t_s, float(x.v_ned[0] - v0[0]), float(x.v_ned[1] - v0[1]))
         self.engine.predict(phi, qd)
         self.t_s = t_s
         self._buffer.append((t_s, x.p_ned.copy(), x.v_ned.copy()))
@@ -485,7 +523,8 @@ class NavFilter:
 
     def _model_aiding(self, t_s: float) -> None:
         """The aiding that needs no sensor sample: synthetic sideslip and the state-based force model."""
-        if (self.spec.sideslip or self.fallback) and self._due("sideslip", t_s):
+        ports_out = self.fdi is not None and not self.fdi.fused("ports")  # β from the ports is gone: as fallback
+        if (self.spec.sideslip or self.fallback or ports_out) and self._due("sideslip", t_s):
             self._fuse(Measurement(t_s, np.zeros(1), SyntheticSideslip(self.config.sideslip_sigma)))
         if self.spec.force == "classic" and self._due("classic", t_s):
             self._fuse(Measurement(t_s, self.inputs.f_b.copy(), self._classic_force()), adaptive=True)
@@ -513,7 +552,7 @@ class NavFilter:
         dim = len(y)
         gate = GATE_CHI2.get(dim, float(dim + 6.0 * math.sqrt(2.0 * dim)))
         if consider is None and self.in_outage:
-            consider = self._consider
+            consider = self._wind_live if meas.t_s < self._wind_live_until_s else self._consider
         r = model.covariance()
         if adaptive:
             if not self.in_outage:
@@ -532,6 +571,15 @@ class NavFilter:
         else:
             self.rejected[name] = self.rejected.get(name, 0) + 1
         return res
+
+    def _nis(self, meas: Measurement, *, adaptive: bool = False) -> float:
+        """A measurement's normalised innovation squared against the current state, without fusing it."""
+        assert self.x is not None and self.engine is not None
+        model = meas.model
+        y = meas.z - model.evaluate(self.x)
+        h = model.jacobian(self.x)
+        r = self.adaptive.covariance(model.name, model.covariance()) if adaptive else model.covariance()
+        return self.engine.nis(y, h, r)
 
     def gnss(self, t_valid_s: float, t_s: float, p_ned: F64Array, v_ned: F64Array) -> None:
         """A GNSS fix valid at ``t_valid_s`` that arrived at ``t_s`` (local NED position [m], velocity [m/s];
@@ -633,9 +681,13 @@ class NavFilter:
         if not self._due("pitot", t_s):
             return
         tas = math.sqrt(2.0 * max(dp_pa, 0.0) / self.inputs.rho_kg_m3)
-        if tas < 8.0:  # below the pitot's useful range (and on the ground)
-            return
-        self._fuse(Measurement(t_s, np.array([tas]), PitotAirspeed(self.config.pitot_sigma_m_s)))
+        meas = Measurement(t_s, np.array([tas]), PitotAirspeed(self.config.pitot_sigma_m_s))
+        if self.fdi is not None and self._ports_speed is not None and t_s - self._ports_speed[0] <= PAIR_MAX_AGE_S:
+            _, v_ports, sig_ports = self._ports_speed  # the two airspeeds against each other, no state in between
+            self.fdi.observe_pair(t_s, tas - v_ports, math.hypot(self.config.pitot_sigma_m_s, sig_ports))
+        # below the pitot's useful range (and on the ground) it is never fused, but a pitot reading near zero in
+        # flight is what a blocked one does: the FDI judges it
+        self._fuse_source("pitot", meas, fuse=tas >= 8.0)
 
     def _ctx(self) -> ForceContext:
         prop = self.config.vehicle.propulsion
@@ -667,10 +719,66 @@ class NavFilter:
         if self.spec.ports_airdata:
             assert frame.airdata_cov is not None
             cov = frame.airdata_cov + np.diag(np.square(c.airdata_sigma_floor))
-            self._fuse(Measurement(frame.t_s, frame.airdata, PortAirData(cov)), adaptive=True)
-        if self.spec.force is not None and self.spec.force in frame.coeffs:
-            coeffs = frame.coeffs[self.spec.force][:3]
+            self._ports_speed = (frame.t_s, float(frame.airdata[0]), math.sqrt(float(cov[0, 0])))
+            self._fuse_source("ports", Measurement(frame.t_s, frame.airdata, PortAirData(cov)), adaptive=True)
+        self._watch_wind(frame)
+        force = self.spec.force_model(frame.coeffs)
+        if force is not None:
+            coeffs = frame.coeffs[force][:3]
             sig = np.asarray(c.force_sigma_m_s2) * math.sqrt(frame.inflation)
-            self._fuse(
-                Measurement(frame.t_s, self.inputs.f_b.copy(), PortForce(coeffs, self._ctx(), sig)), adaptive=True
+            self._fuse_source(
+                "force",
+                Measurement(frame.t_s, self.inputs.f_b.copy(), PortForce(coeffs, self._ctx(), sig)),
+                adaptive=True,
             )
+
+    def _fuse_source(self, source: str, meas: Measurement, *, adaptive: bool = False, fuse: bool = True) -> None:
+        """Fuse one air-data measurement (if ``fuse``) unless the FDI has excluded its source; with FDI, its
+        innovation is judged either way (an excluded source against the state the others keep)."""
+        if self.fdi is None:
+            if fuse:
+                self._fuse(meas, adaptive=adaptive)
+            return
+        if fuse and self.fdi.fused(source):
+            nis = self._fuse(meas, adaptive=adaptive).nis
+        else:
+            nis = self._nis(meas, adaptive=adaptive)
+        event = self.fdi.observe(source, meas.t_s, nis, len(meas.z))
+        if event is None:
+            return
+        self.counts[f"fdi_{event.source}_{event.what}"] = self.counts.get(f"fdi_{event.source}_{event.what}", 0) + 1
+        if event.source == "wind" and self.spec.wind_relearn:
+            self._relearn_wind(meas.t_s)
+
+    def _watch_wind(self, frame: PortFrame) -> None:
+        """The ports' air velocity in NED (their V, α, β less the state's corrections, rotated by the attitude)
+        for the wind-change detector; in an outage a change it sees is relearnt."""
+        if self.wind_change is None or self.x is None or frame.airdata is None:
+            return
+        if self.fdi is not None and not self.fdi.fused("ports"):
+            return
+        a = self.x.aero
+        speed = float(frame.airdata[0]) / max(float(a[AERO_SLOT["airspeed_scale"]]), 0.5)
+        alpha = float(frame.airdata[1]) - float(a[AERO_SLOT["alpha_bias_rad"]])
+        beta = float(frame.airdata[2]) - float(a[AERO_SLOT["beta_bias_rad"]])
+        v_b = speed * np.array([math.cos(alpha) * math.cos(beta), math.sin(beta), math.sin(alpha) * math.cos(beta)])
+        v_n = dcm_from_quat(self.x.q_nb) @ v_b
+        change = self.wind_change.air(frame.t_s, float(v_n[0]), float(v_n[1]))
+        if change is None or not self.in_outage or change <= WIND_CHANGE_M_S or frame.t_s < self._wind_live_until_s:
+            return
+        if self.fdi is not None and self.fdi.wind_changed(frame.t_s, change) is None:
+            return
+        self.counts["fdi_wind_changed"] = self.counts.get("fdi_wind_changed", 0) + 1
+        self._relearn_wind(frame.t_s)
+
+    def _relearn_wind(self, t_s: float) -> None:
+        """The air data agree the wind has changed: forget the wind (σ back to a shear's size, uncorrelated) and
+        let it be estimated for the FDI's relearning time, also in an outage."""
+        assert self.engine is not None
+        p = self.engine.P
+        i = IDX["wind"]
+        p[i, :] = 0.0
+        p[:, i] = 0.0
+        p[i, i] = np.diag(np.square(WIND_RELEARN_SIGMA_M_S))
+        self.engine.P = p
+        self._wind_live_until_s = t_s + WIND_RELEARN_S

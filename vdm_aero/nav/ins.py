@@ -89,6 +89,7 @@ class InsProcess:
         q[IDX["aero"]] = np.square(n.aero_per_s)
         q[IDX["gnss"]] = 2.0 / n.gnss_tau_s * np.square([n.gnss_sigma_ne_m, n.gnss_sigma_ne_m, n.gnss_sigma_d_m])
         self._gust_rate = 1.0 / np.asarray(n.gust_tau_s)
+        self.wind_height_rate_scale = 0.0  # > 0: wind noise × (1 + scale·|ḣ|), EKF2/3's WIND_PSCALE
         self._qc = q
         self.set_gust_sigma(np.asarray(n.gust_sigma_m_s, dtype=np.float64))
         self._g = np.array([0.0, 0.0, G0_M_S2])
@@ -140,5 +141,11 @@ class InsProcess:
         return _EYE + fdt + 0.5 * fdt @ fdt
 
     def noise(self, x: NavState, u: ImuIncrement) -> F64Array:
-        """Q_d = G·Q_c·Gᵀ·Δt (the velocity noise rotated to NED; its covariance is isotropic)."""
-        return np.diag(self._qc * u.dt_s)
+        """Q_d = G·Q_c·Gᵀ·Δt (the velocity noise rotated to NED; its covariance is isotropic); the wind's
+        grows with the height rate when :attr:`wind_height_rate_scale` is set (a climb or descent crosses
+        the wind gradient: EKF2/3 scale the wind's process noise the same way)."""
+        if self.wind_height_rate_scale <= 0.0:
+            return np.diag(self._qc * u.dt_s)
+        q = self._qc.copy()
+        q[IDX["wind"]] *= (1.0 + self.wind_height_rate_scale * abs(float(x.v_ned[2]))) ** 2
+        return np.diag(q * u.dt_s)

@@ -1,0 +1,142 @@
+"""The air-data FDI's logic (vdm_aero.nav.airdata_fdi): detection, isolation (by the pitot-ports pair, else the
+worst source), a wind change told from a sensor fault, re-admission with hysteresis, never excluding the last
+source; and the product mode's wind relearning."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from vdm_aero.nav.airdata_fdi import DETECT, READMIT_HOLD_S, TAU_S, AirDataFdi
+
+RATE_HZ = 10.0
+
+
+def _feed(fdi: AirDataFdi, t0: float, t1: float, nis: dict[str, float], pair_z: float | None = None
+          ) -> list[tuple[float, str, str]]:  # fmt: skip
+    """Every source's NIS (per dim 1) at 10 Hz from t0 to t1, and with ``pair_z`` the pitot-ports difference at
+    that many σ every sample; the status changes."""
+    out = []
+    for k in range(round((t1 - t0) * RATE_HZ)):
+        t = t0 + k / RATE_HZ
+        if pair_z is not None:
+            fdi.observe_pair(t, pair_z, 1.0)
+        for s, v in nis.items():
+            e = fdi.observe(s, t, v, 1)
+            if e is not None:
+                out.append((e.t_s, e.source, e.what))
+    return out
+
+
+def test_healthy_sources_raise_nothing() -> None:
+    rng = np.random.default_rng(3)
+    fdi = AirDataFdi()
+    for k in range(round(600 * RATE_HZ)):  # ten minutes of χ²₁ innovations of consistent sources
+        t = k / RATE_HZ
+        for s in ("pitot", "ports", "force"):
+            assert fdi.observe(s, t, float(rng.standard_normal() ** 2), 1) is None
+    assert fdi.events == []
+
+
+def test_a_pitot_that_disagrees_is_excluded_within_seconds_and_readmitted_when_it_agrees() -> None:
+    fdi = AirDataFdi()
+    _feed(fdi, 0.0, 30.0, {"pitot": 0.2, "ports": 0.2, "force": 0.2})
+    # icing: the pitot's innovation 5σ (NIS 25), the others slightly pulled (NIS 2)
+    ev = _feed(fdi, 30.0, 60.0, {"pitot": 25.0, "ports": 2.0, "force": 2.0})
+    assert [(s, w) for _, s, w in ev] == [("pitot", "excluded")]
+    # the smoothed level crosses DETECT after τ·ln((25 − 1)/(25 − DETECT)) ≈ 1.2 s
+    assert ev[0][0] - 30.0 == pytest.approx(TAU_S * math.log(24.0 / (25.0 - DETECT)), abs=0.2)
+    assert not fdi.fused("pitot") and fdi.fused("ports") and fdi.excluded() == ["pitot"]
+    # it agrees again: re-admitted only after READMIT_HOLD_S of agreement
+    ev = _feed(fdi, 60.0, 90.0, {"pitot": 0.2, "ports": 0.2, "force": 0.2})
+    assert [(s, w) for _, s, w in ev] == [("pitot", "readmitted")]
+    assert ev[0][0] - 60.0 > READMIT_HOLD_S
+    assert fdi.fused("pitot")
+
+
+def test_the_worst_source_goes_first_and_the_last_one_never() -> None:
+    fdi = AirDataFdi()
+    _feed(fdi, 0.0, 10.0, {"pitot": 0.2, "ports": 0.2, "force": 0.2})
+    ev = _feed(fdi, 10.0, 40.0, {"pitot": 20.0, "ports": 60.0, "force": 1.0})
+    assert next(s for _, s, w in ev if w == "excluded") == "ports"  # the worse of the two disagreeing ones first
+    fdi2 = AirDataFdi()
+    _feed(fdi2, 0.0, 10.0, {"pitot": 1.0})  # a single source: nothing to isolate it against
+    assert _feed(fdi2, 10.0, 40.0, {"pitot": 100.0}) == []
+
+
+def test_a_gross_fault_detected_from_gated_samples() -> None:
+    # a pitot reading zero: every sample is gated out by the EKF, and its NIS (huge) still counts
+    fdi = AirDataFdi()
+    _feed(fdi, 0.0, 10.0, {"pitot": 1.0, "ports": 1.0})
+    ev = _feed(fdi, 10.0, 15.0, {"pitot": 500.0, "ports": 1.0})
+    assert ev and ev[0][1:] == ("pitot", "excluded") and ev[0][0] - 10.0 < 0.5
+
+
+def test_the_pair_tells_a_sensor_fault_from_a_wind_change() -> None:
+    healthy = {"pitot": 0.2, "ports": 0.2, "force": 0.2}
+    # icing: the pitot under-reads, the pair disagrees (5σ), the pitot is further from the state than the ports
+    fdi = AirDataFdi()
+    _feed(fdi, 0.0, 20.0, healthy, 0.5)
+    ev = _feed(fdi, 20.0, 21.0, {"pitot": 20.0, "ports": 14.0, "force": 3.0}, 5.0)
+    # without the pitot the state follows the ports again, and nothing else goes
+    ev += _feed(fdi, 21.0, 60.0, {"pitot": 40.0, "ports": 0.2, "force": 0.2}, 6.0)
+    assert [(s, w) for _, s, w in ev] == [("pitot", "excluded")]
+    # a shear: pitot and ports agree with each other (pair 0.5σ) and both disagree with the state's wind
+    fdi = AirDataFdi()
+    _feed(fdi, 0.0, 20.0, healthy, 0.5)
+    ev = _feed(fdi, 20.0, 40.0, {"pitot": 20.0, "ports": 20.0, "force": 15.0}, 0.5)
+    assert ev[0][1:] == ("wind", "changed") and fdi.excluded() == []
+    assert len([e for e in ev if e[1] == "wind"]) == 1  # one event per relearning time (30 s), not a storm
+    # the airframe iced or damaged: the airspeeds agree with the state and each other, the force model does not
+    fdi = AirDataFdi()
+    _feed(fdi, 0.0, 20.0, healthy, 0.5)
+    ev = _feed(fdi, 20.0, 40.0, {"pitot": 0.2, "ports": 0.2, "force": 30.0}, 0.5)
+    assert [(s, w) for _, s, w in ev] == [("force", "excluded")]
+
+
+def test_the_product_mode_relearns_the_wind_on_a_wind_event_and_scales_its_noise_with_the_height_rate() -> None:
+    from vdm_aero.nav.airdata_fdi import WIND_RELEARN_S
+    from vdm_aero.nav.contracts import ImuIncrement
+    from vdm_aero.nav.filter import MODES, WIND_PSCALE, WIND_RELEARN_SIGMA_M_S, NavConfig, NavFilter
+    from vdm_aero.nav.state import IDX
+    from vdm_aero.vehicle import load_vehicle
+
+    assert MODES["vdm"].wind_relearn and MODES["vdm"].fdi and not MODES["vdm-deim-nn"].wind_relearn
+    cfg = NavConfig(vehicle=load_vehicle("uav-2m"), origin_alt_m=50.0, mag_field_ned_ut=np.array([20.1, -4.9, 46.5]))
+    w = IDX["wind"]
+    f = NavFilter("vdm", cfg)
+    f_b, mag = np.array([0.0, 0.0, -9.80665]), np.array([20.1, -4.9, 46.5])
+    f.initialise(0.0, np.zeros(3), np.array([19.0, 0.0, 0.0]), f_b, mag)
+    assert f.x is not None and f.engine is not None
+    inc = ImuIncrement(np.zeros(3), f_b * 0.02, 0.02)
+    level = f.process.noise(f.x, inc)[w, w].diagonal().copy()
+    f.x.v_ned = np.array([19.0, 0.0, -4.0])  # climbing at 4 m/s
+    climbing = f.process.noise(f.x, inc)[w, w].diagonal()
+    np.testing.assert_allclose(climbing, level * (1.0 + WIND_PSCALE * 4.0) ** 2)
+    # held in an outage until the air data agree it changed; then relearnt for WIND_RELEARN_S
+    assert f._consider[w].all()
+    f._relearn_wind(100.0)
+    np.testing.assert_allclose(np.sqrt(np.diag(f.engine.P)[w]), WIND_RELEARN_SIGMA_M_S)
+    assert f.engine.P[w, :][:, IDX["v"]].any() == False  # noqa: E712 - uncorrelated with the rest
+    assert f._wind_live_until_s == pytest.approx(100.0 + WIND_RELEARN_S)
+
+
+def test_a_branch_of_the_filter_has_its_own_fdi_and_wind_detector() -> None:
+    # the benchmark branches one flight into its outage lengths with deepcopy: a branch's exclusions and wind
+    # history must not leak into another's
+    import copy
+
+    from vdm_aero.nav.filter import NavConfig, NavFilter
+    from vdm_aero.vehicle import load_vehicle
+
+    cfg = NavConfig(vehicle=load_vehicle("uav-2m"), origin_alt_m=50.0, mag_field_ned_ut=np.array([20.1, -4.9, 46.5]))
+    a = NavFilter("vdm", cfg)
+    b = copy.deepcopy(a)
+    assert a.fdi is not None and b.fdi is not None and a.wind_change is not None
+    a.fdi.observe("pitot", 1.0, 100.0, 1)
+    a.fdi.wind_changed(1.0, 9.0)
+    a.wind_change.ins_step(1.0, 1.0, 0.0)
+    assert b.fdi.level("pitot") == pytest.approx(1.0) and b.fdi.events == []
+    assert b.wind_change is not a.wind_change and b.wind_change._cum == (0.0, 0.0)

@@ -1,0 +1,253 @@
+"""Air-data fault detection and isolation (FDI) for the product mode ``vdm``.
+
+The aircraft has several views of the airflow: the pitot (airspeed), the ports' air data (V, α, β from the
+FADS solve), the ports' force model (the body force the IMU must feel at that airflow) and the INS with the
+wind (v − w). Each fused source is checked against the state the others keep, in the spirit of a χ²
+innovation test (Brumback & Srinath's residual χ² test; avionics' analytic redundancy of three air-data
+computers): the normalised innovation squared of every measurement, NIS/dim, is smoothed with a time
+constant of :data:`TAU_S`; a healthy, consistent source stays near 1.
+
+* **Detect**: a source whose smoothed NIS/dim passes :data:`DETECT` disagrees with the state. Gated-out
+  measurements count: a pitot that suddenly reads zero is rejected by the gate every time and seen at once.
+* **Sensor or wind?** The pitot and the ports' airspeed are also compared with each other directly (their
+  difference over its σ, smoothed alike: the *pair*), which no state estimate enters. When the pair
+  disagrees, one of the two is wrong: the one further from the state is excluded. When the pair agrees but
+  both disagree with the state, the state is wrong, not a sensor: the wind has changed (a shear, a
+  gradient crossed in a climb), and the filter relearns it (``wind`` event) instead of excluding anything.
+  Without the pair (no pitot, or no port air data) the worst source is excluded.
+* **Isolate**: one source at a time is excluded (never fused again until re-admitted); the others keep the
+  state honest, and its innovations are still computed against that state.
+* **Re-admit**: an excluded source whose smoothed NIS/dim stays under :data:`READMIT` for
+  :data:`READMIT_HOLD_S` agrees again and is fused again.
+
+What this cannot do: tell a source that is wrong from a state that is wrong when only one source is left,
+or see a fault that grows slower than the state follows it (a slowly icing pitot pulls a live wind with it;
+the ports' own airspeed is what holds the wind back, so both must be fused for that to be seen).
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from dataclasses import dataclass, field
+from typing import Final
+
+__all__ = [
+    "DETECT",
+    "PAIR_DETECT",
+    "PAIR_MAX_AGE_S",
+    "READMIT",
+    "READMIT_HOLD_S",
+    "SOURCES",
+    "TAU_S",
+    "WIND_RELEARN_S",
+    "AirDataFdi",
+    "FdiEvent",
+]
+
+SOURCES: Final = ("pitot", "ports", "force")
+TAU_S: Final = 2.0  # smoothing of NIS/dim: a few aiding updates at 10 Hz, short against a 10 s detection bar
+# Thresholds on the smoothed NIS/dim, set from healthy flights, not from χ² tables: the air-data noise the filter
+# assumes is conservative, so healthy levels sit near 0.1, not 1. On the harsh world's survey (3 seeds × 8 min,
+# turbulence, manoeuvres, the whole outage) the highest healthy levels were: pitot 1.0, ports 0.55, force 3.4,
+# pair 1.2 (docs/navigation.md). DETECT and PAIR_DETECT keep a margin of 1.8–2.5× over those.
+DETECT: Final = 6.0
+PAIR_DETECT: Final = 3.0
+READMIT: Final = 1.0
+READMIT_HOLD_S: Final = 10.0
+MIN_FUSED: Final = 1  # never exclude the last fused source: with nothing left to compare, a fault is unisolable
+PAIR_MAX_AGE_S: Final = 0.5  # the pair's two readings at most this far apart
+WIND_RELEARN_S: Final = 30.0  # after a wind event the wind is learnt for this long; no second event meanwhile
+WIND_LEVEL: Final = 3.0  # both airspeeds this far from the state while agreeing with each other: the wind moved
+SETTLE_S: Final = 5.0  # after an exclusion the state follows the others again: no second exclusion meanwhile
+
+
+@dataclass(frozen=True)
+class FdiEvent:
+    """A change of a source's status: ``excluded`` or ``readmitted`` at ``t_s`` with its smoothed NIS/dim."""
+
+    t_s: float
+    source: str
+    what: str
+    nis_per_dim: float
+
+
+@dataclass
+class _Source:
+    level: float = 1.0
+    last_t_s: float = -math.inf
+    excluded: bool = False
+    agree_since_s: float | None = None
+
+
+@dataclass
+class AirDataFdi:
+    """The monitor of :data:`SOURCES` (module docstring). Feed every innovation with :meth:`observe`; ask
+    :meth:`fused` before fusing; :attr:`events` is the history."""
+
+    detect: float = DETECT
+    pair_detect: float = PAIR_DETECT
+    readmit: float = READMIT
+    readmit_hold_s: float = READMIT_HOLD_S
+    tau_s: float = TAU_S
+    sources: dict[str, _Source] = field(default_factory=lambda: {s: _Source() for s in SOURCES})
+    pair: _Source = field(default_factory=_Source)
+    events: list[FdiEvent] = field(default_factory=list)
+    last_wind_event_s: float = -math.inf
+    last_exclusion_s: float = -math.inf
+
+    def fused(self, source: str) -> bool:
+        """Whether ``source`` may be fused now."""
+        return not self.sources[source].excluded
+
+    def excluded(self) -> list[str]:
+        return [s for s, st in self.sources.items() if st.excluded]
+
+    def level(self, source: str) -> float:
+        """The smoothed NIS/dim of ``source``."""
+        return self.sources[source].level
+
+    def _smooth(self, st: _Source, t_s: float, x: float) -> None:
+        x = min(x, 1e4) if math.isfinite(x) else 1e4  # one wild sample cannot saturate the level
+        dt = t_s - st.last_t_s if math.isfinite(st.last_t_s) else self.tau_s
+        a = math.exp(-max(dt, 0.0) / self.tau_s)
+        st.level = a * st.level + (1.0 - a) * x
+        st.last_t_s = t_s
+
+    def observe_pair(self, t_s: float, difference_m_s: float, sigma_m_s: float) -> None:
+        """The pitot's airspeed less the ports' [m/s] at ``t_s``, with the σ of that difference."""
+        self._smooth(self.pair, t_s, (difference_m_s / sigma_m_s) ** 2)
+
+    def _pair_known(self, t_s: float) -> bool:
+        both = self.fused("pitot") and self.fused("ports")
+        return both and t_s - self.pair.last_t_s <= max(PAIR_MAX_AGE_S, 2.0 * self.tau_s)
+
+    def observe(self, source: str, t_s: float, nis: float, dim: int) -> FdiEvent | None:
+        """One innovation of ``source`` at ``t_s`` (its NIS over ``dim`` components, fused or not); returns the
+        status change it caused, if any: an exclusion, a re-admission, or a ``wind`` event (the state's wind
+        is what disagrees: relearn it)."""
+        st = self.sources[source]
+        self._smooth(st, t_s, nis / max(dim, 1))
+        if st.excluded:
+            if st.level < self.readmit:
+                st.agree_since_s = t_s if st.agree_since_s is None else st.agree_since_s
+                if t_s - st.agree_since_s >= self.readmit_hold_s:
+                    st.excluded, st.agree_since_s = False, None
+                    return self._event(t_s, source, "readmitted")
+            else:
+                st.agree_since_s = None
+            return None
+        if t_s - self.last_exclusion_s < SETTLE_S:
+            return None  # the state still settling after the last exclusion
+        if self._pair_known(t_s) and source in ("pitot", "ports"):
+            other = "ports" if source == "pitot" else "pitot"
+            if self.pair.level > self.pair_detect:  # the airspeeds disagree: the one further from the state is wrong
+                if self.sources[other].level > st.level:
+                    return None
+                st.excluded, st.agree_since_s = True, None
+                return self._event(t_s, source, "excluded")
+            if self.pair.level < self.readmit and min(st.level, self.level(other)) > WIND_LEVEL:
+                # both airspeeds agree with each other, not with the state: the wind has changed
+                if t_s - self.last_wind_event_s < WIND_RELEARN_S:
+                    return None
+                self.last_wind_event_s = t_s
+                return self._event(t_s, "wind", "changed")
+            return None
+        if st.level <= self.detect:
+            return None
+        if self._pair_known(t_s):  # the force model off while the airspeeds agree with the state and each other
+            if max(self.level("pitot"), self.level("ports")) > self.readmit:
+                return None
+            st.excluded, st.agree_since_s = True, None
+            return self._event(t_s, source, "excluded")
+        fused = [s for s, o in self.sources.items() if not o.excluded and math.isfinite(o.last_t_s)]
+        if len(fused) <= MIN_FUSED:
+            return None
+        worst = max(fused, key=lambda s: self.sources[s].level)
+        if worst != source:
+            return None  # the worse one goes first; this one is judged again once that one is out
+        st.excluded, st.agree_since_s = True, None
+        return self._event(t_s, source, "excluded")
+
+    def wind_changed(self, t_s: float, change_m_s: float) -> FdiEvent | None:
+        """A wind change of ``change_m_s`` seen by :class:`WindChangeDetector`: a ``wind`` event, at most one
+        per :data:`WIND_RELEARN_S`."""
+        if t_s - self.last_wind_event_s < WIND_RELEARN_S:
+            return None
+        self.last_wind_event_s = t_s
+        e = FdiEvent(t_s, "wind", "changed", change_m_s)
+        self.events.append(e)
+        return e
+
+    def _event(self, t_s: float, source: str, what: str) -> FdiEvent:
+        if what == "excluded":
+            self.last_exclusion_s = t_s
+        level = self.sources[source].level if source in self.sources else self.pair.level
+        e = FdiEvent(t_s, source, what, level)
+        self.events.append(e)
+        return e
+
+
+WIND_CHANGE_WINDOW_S: Final = 10.0
+# |Δw| over the window that is a wind change, not turbulence or the INS's own error: on the harsh world's survey
+# (turbulence, 180° turns) healthy flight reached 5.5–7.5 m/s; the wind-shear scenario's change (+4 m/s and
+# 60° over 10 s, |Δw| ≈ 10.6 m/s) read 11.3 m/s (docs/navigation.md). A small margin: a shear under ~8 m/s in
+# 10 s is not caught, and an alarm in healthy flight costs 30 s of a live wind.
+WIND_CHANGE_M_S: Final = 8.0
+AIR_SMOOTH_S: Final = 1.0  # the ports' air velocity smoothed over this (their noise, single gusts)
+
+
+@dataclass
+class WindChangeDetector:
+    """A wind change the held wind misses, from the accelerometers against the air data: over the last
+    :data:`WIND_CHANGE_WINDOW_S`, the INS's own velocity change (the IMU increments rotated to NED, no
+    measurement in it) less the change of the air velocity the ports measure (rotated to NED alike) is the
+    wind's change; an aircraft flying through a shear feels it in its airspeed, its ground velocity follows
+    only through the airframe's dynamics. Both are smoothed alike (the same lag: in a turn the velocity turns
+    at several m/s²)."""
+
+    window_s: float = WIND_CHANGE_WINDOW_S
+    _cum: tuple[float, float] = (0.0, 0.0)
+    _t: list[float] = field(default_factory=list)
+    _v: list[tuple[float, float, float, float]] = field(default_factory=list)  # smoothed air N, E and INS N, E
+    _last_t_s: float = -math.inf
+
+    def ins_step(self, t_s: float, dv_n: float, dv_e: float) -> None:
+        """One IMU step's velocity change, north and east [m/s] (gravity and the bias estimate applied)."""
+        self._cum = (self._cum[0] + dv_n, self._cum[1] + dv_e)
+
+    def air(self, t_s: float, v_air_n: float, v_air_e: float) -> float | None:
+        """The ports' air velocity, north and east [m/s], at ``t_s``; the horizontal wind change over the window
+        [m/s], once the window is full."""
+        dt = t_s - self._last_t_s
+        now = (v_air_n, v_air_e, *self._cum)
+        if self._v and dt < 5.0:
+            a = math.exp(-dt / AIR_SMOOTH_S)
+            now = tuple(a * p + (1.0 - a) * c for p, c in zip(self._v[-1], now, strict=True))  # type: ignore[assignment]
+        else:
+            self._t.clear()
+            self._v.clear()
+        self._last_t_s = t_s
+        self._t.append(t_s)
+        self._v.append(now)
+        k = 0
+        while k < len(self._t) and self._t[k] < t_s - self.window_s - 2.0:
+            k += 1
+        if k:
+            del self._t[:k], self._v[:k]
+        if self._t[0] > t_s - self.window_s + 0.5:
+            return None
+        old = self._v[_index_at(self._t, t_s - self.window_s)]
+        d_air = (now[0] - old[0], now[1] - old[1])
+        d_ins = (now[2] - old[2], now[3] - old[3])
+        return math.hypot(d_ins[0] - d_air[0], d_ins[1] - d_air[1])
+
+
+def _index_at(t: list[float], t_s: float) -> int:
+    """The index of the sample nearest ``t_s`` in the increasing times ``t``."""
+    k = bisect.bisect_left(t, t_s)
+    if k == 0:
+        return 0
+    if k >= len(t):
+        return len(t) - 1
+    return k if t[k] - t_s < t_s - t[k - 1] else k - 1
