@@ -12,6 +12,20 @@ from typing import Any
 import pytest
 
 
+def require_tool(tool: str, package: str) -> str:
+    """Path of ``tool``; a missing tool fails CI (.ci/run installs it) and only skips a developer's run, who
+    may not have the Debian package (the reason names it)."""
+    import shutil
+
+    path = shutil.which(tool)
+    if path is None:
+        reason = f"{tool} is not installed (Debian: apt-get install {package}; .ci/run installs it)"
+        if os.environ.get("CI"):
+            pytest.fail(reason)
+        pytest.skip(reason)
+    return path
+
+
 def once_per_session(tmp_path_factory: pytest.TempPathFactory, name: str, build: Callable[[Path], Any]) -> Any:
     """``build(directory)`` once per test session, also when pytest-xdist runs it in several workers: the
     first worker builds under a file lock in the session's shared temporary directory, the others read its

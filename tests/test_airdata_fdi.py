@@ -119,7 +119,7 @@ def test_the_product_mode_relearns_the_wind_on_a_wind_event_and_scales_its_noise
     assert f._consider[w].all()
     f._relearn_wind(100.0)
     np.testing.assert_allclose(np.sqrt(np.diag(f.engine.P)[w]), WIND_RELEARN_SIGMA_M_S)
-    assert f.engine.P[w, :][:, IDX["v"]].any() == False  # noqa: E712 - uncorrelated with the rest
+    assert not f.engine.P[w, :][:, IDX["v"]].any()  # uncorrelated with the rest
     assert f._wind_live_until_s == pytest.approx(100.0 + WIND_RELEARN_S)
 
 

@@ -6,13 +6,14 @@ from __future__ import annotations
 import configparser
 import os
 import shlex
-import shutil
 import subprocess
 import sys
 from pathlib import Path, PurePosixPath
 
 import pytest
 import yaml
+
+from tests.conftest import require_tool
 
 REPO = Path(__file__).resolve().parents[1]
 DEPLOY = REPO / "deploy"
@@ -21,17 +22,6 @@ UNIT = DEPLOY / "vdm-aero.service"
 ROUTER_CONF = DEPLOY / "routers" / "mavlink-router.conf"
 MAVPROXY_UNIT = DEPLOY / "routers" / "mavproxy.service"
 TEMPLATE_PREFIX = "/opt/vdm-aero"
-
-
-def _require(tool: str, package: str) -> str:
-    """Path of ``tool``; a missing tool fails CI (.ci/run installs it) and only skips a developer's run."""
-    path = shutil.which(tool)
-    if path is None:
-        reason = f"{tool} is not installed (Debian: apt-get install {package})"
-        if os.environ.get("CI"):
-            pytest.fail(reason)
-        pytest.skip(reason)
-    return path
 
 
 def _install(
@@ -141,7 +131,7 @@ def _fake_source(src: Path) -> Path:
 
 
 def test_unit_passes_systemd_analyze_verify(tmp_path: Path) -> None:
-    analyze = _require("systemd-analyze", "systemd")
+    analyze = require_tool("systemd-analyze", "systemd")
     # verify checks that ExecStart's binary exists: render the unit as install.sh does, for a prefix in tmp_path
     # that holds an executable vdm-aero. Only the prefix differs from what lands in /etc/systemd/system.
     prefix = tmp_path / "prefix"
@@ -268,8 +258,8 @@ def test_real_install_is_idempotent_and_stops_on_a_bad_config(tmp_path: Path) ->
         if os.environ.get("CI"):
             pytest.fail(reason)
         pytest.skip(reason)
-    _require("useradd", "passwd")
-    _require("systemctl", "systemd")
+    require_tool("useradd", "passwd")
+    require_tool("systemctl", "systemd")
     root, models, config = _inputs(tmp_path)
     (root / "etc").mkdir()
     (root / "etc" / "passwd").write_text("root:x:0:0:root:/root:/bin/bash\n")
@@ -309,13 +299,13 @@ def test_real_install_is_idempotent_and_stops_on_a_bad_config(tmp_path: Path) ->
 def test_install_script_parses_and_passes_shellcheck() -> None:
     proc = subprocess.run(["bash", "-n", str(INSTALL)], capture_output=True, text=True, check=False)
     assert (proc.returncode, proc.stderr) == (0, "")
-    shellcheck = _require("shellcheck", "shellcheck")
+    shellcheck = require_tool("shellcheck", "shellcheck")
     proc = subprocess.run([shellcheck, str(INSTALL)], capture_output=True, text=True, timeout=60, check=False)
     assert (proc.returncode, proc.stdout + proc.stderr) == (0, "")
 
 
 def test_mavproxy_unit_passes_systemd_analyze_verify(tmp_path: Path) -> None:
-    analyze = _require("systemd-analyze", "systemd")
+    analyze = require_tool("systemd-analyze", "systemd")
     text = MAVPROXY_UNIT.read_text()
     (exec_start,) = _parse_unit(text)["Service"]["ExecStart"]
     binary = shlex.split(exec_start)[0]

@@ -11,10 +11,8 @@ The stubs have no ``arming`` binding: :data:`ARMING_SHIM` adds ``arming:is_armed
 from __future__ import annotations
 
 import math
-import os
 import random
 import re
-import shutil
 import subprocess
 from dataclasses import dataclass
 from itertools import pairwise
@@ -22,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
+from tests.conftest import require_tool
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "firmware_bridge" / "ardupilot" / "pressure_ports.lua"
@@ -77,29 +77,16 @@ function dofile(path)
 end
 """
 
-LUA_MISSING = "lua5.4 not installed: apt-get install lua5.4 (.ci/run installs it)"
-
 
 @pytest.fixture
 def lua() -> str:
-    exe = shutil.which("lua5.4")
-    if exe is None:
-        if os.environ.get("CI"):
-            pytest.fail(LUA_MISSING)
-        pytest.skip(LUA_MISSING)
-    return exe
+    return require_tool("lua5.4", "lua5.4")
 
 
 @pytest.fixture(params=["lua5.4", "lua5.3"])
 def any_lua(request: pytest.FixtureRequest) -> str:
     """Both interpreters: lua5.3 is the version ArduPilot embeds."""
-    exe = shutil.which(request.param)
-    if exe is None:
-        reason = f"{request.param} not installed: apt-get install {request.param} (.ci/run installs it)"
-        if os.environ.get("CI"):
-            pytest.fail(reason)
-        pytest.skip(reason)
-    return exe
+    return require_tool(request.param, request.param)
 
 
 def datasheet_pa(counts: float, range_psi: float) -> float:
@@ -392,12 +379,7 @@ def test_one_i2c_handle_for_all_ports(lua: str, tmp_path: Path) -> None:
 
 
 def test_runs_under_the_lua_53_that_ardupilot_embeds(tmp_path: Path) -> None:
-    exe = shutil.which("lua5.3")
-    if exe is None:
-        reason = "lua5.3 not installed (ArduPilot embeds Lua 5.3.6): apt-get install lua5.3 (.ci/run installs it)"
-        if os.environ.get("CI"):
-            pytest.fail(reason)
-        pytest.skip(reason)
+    exe = require_tool("lua5.3", "lua5.3")  # ArduPilot embeds Lua 5.3.6
     sensors = make_sensors(12, 3, 12)
     run = run_script(exe, tmp_path, params=WIRING, updates=3, frames=sensors.frames)
     for k in (1, 2, 3):

@@ -59,11 +59,14 @@ class EkfEngine:
 
     def nis(self, innovation: F64Array, h: F64Array, r: F64Array) -> float:
         """The normalised innovation squared yᵀS⁻¹y of a measurement, S = HPHᵀ + R, without fusing it."""
+        return self._s_and_nis(innovation, h, r)[1]
+
+    def _s_and_nis(self, innovation: F64Array, h: F64Array, r: F64Array) -> tuple[F64Array, float]:
         s = h @ self._kf.P @ h.T + r
         try:
-            return float(innovation @ np.linalg.solve(s, innovation))
+            return s, float(innovation @ np.linalg.solve(s, innovation))
         except np.linalg.LinAlgError:
-            return float("inf")
+            return s, float("inf")
 
     def update(
         self,
@@ -77,11 +80,7 @@ class EkfEngine:
         correction δx (to inject into the nominal state; zero when rejected) and the gate outcome."""
         kf = self._kf
         p = kf.P
-        s = h @ p @ h.T + r
-        try:
-            nis = float(innovation @ np.linalg.solve(s, innovation))
-        except np.linalg.LinAlgError:
-            return np.zeros(self._n), UpdateResult(False, float("inf"), gate)
+        s, nis = self._s_and_nis(innovation, h, r)
         if not nis <= gate:
             return np.zeros(self._n), UpdateResult(False, nis, gate)
         if consider is None or not consider.any():
