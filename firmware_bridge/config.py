@@ -28,7 +28,6 @@ __all__ = ["ConfigError", "ServiceConfig", "load_config"]
 AUTOPILOTS = ("ardupilot", "px4")
 SOLUTION_OUTPUTS = {"ardupilot": ("gps_input", "none"), "px4": ("global_position_sensor", "odometry", "none")}
 PORT_SOURCES = ("named_value_float", "debug_float_array")
-DYNAMIC_PRESSURE = ("ports", "pitot")
 NAME_MAX = 10  # NAMED_VALUE_FLOAT name length
 _SHOW = reprlib.Repr()
 _SHOW.maxstring = _SHOW.maxother = _SHOW.maxlong = 60
@@ -46,7 +45,6 @@ class PortsConfig:
     frame_timeout_s: float
     range_pa: float
     noise_pa: float
-    dynamic_pressure: str
 
 
 @dataclass(frozen=True)
@@ -297,7 +295,6 @@ def _read(r: _Node) -> ServiceConfig:
         frame_timeout_s=p.num("frame_timeout_s", 0.05, lo=0.001, hi=1.0),
         range_pa=p.num("range_pa", 500.0, lo=1.0, hi=1e5),
         noise_pa=p.num("noise_pa", 0.2, lo=1e-4, hi=1e3),
-        dynamic_pressure=p.choice("dynamic_pressure", DYNAMIC_PRESSURE, "ports"),
     )
     p.finish()
     s = r.sub("streams")

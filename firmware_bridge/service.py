@@ -145,7 +145,6 @@ class CompanionService:
         self.autopilot: tuple[int, int] | None = None
         self._last_ap_heartbeat = -math.inf
         self._unix_minus_boot_s: float | None = None
-        self._last_pitot_dp = math.nan
         self._last_mag: tuple[float, float, float] | None = None
         self._last_baro_ms = -1
         self._last_gps_us = -1
@@ -320,13 +319,12 @@ class CompanionService:
             return  # the same sample again (the stream runs faster than the sensor)
         self._last_baro_ms = msg.time_boot_ms
         s = units.from_scaled_pressure(msg)
-        self._last_pitot_dp = s.pitot_dp_pa
         if self.driver is None:
             return
         t = self.clock.filter_s(s.t_s)
         self.driver.baro(t, s.static_pa)
         if math.isfinite(s.pitot_dp_pa):
-            self.driver.pitot(t, s.pitot_dp_pa)
+            self.driver.pitot(t, s.pitot_dp_pa, s.pitot_temperature_c)
 
     def _on_gps_raw_int(self, msg: MavlinkMessage, t_in: float) -> None:
         if not self._from_autopilot(msg):
@@ -433,10 +431,7 @@ class CompanionService:
         if self.driver is None:
             return
         dp = fr.dp_pa[self._port_order]
-        qbar = None
-        if self.cfg.ports.dynamic_pressure == "pitot" and math.isfinite(self._last_pitot_dp):
-            qbar = self._last_pitot_dp
-        solved = self.driver.solve_ports(self.clock.filter_s(fr.t_s), dp, qbar)
+        solved = self.driver.solve_ports(self.clock.filter_s(fr.t_s), dp)
         if solved is None:
             return
         # the aerodynamic outputs first (they need the solved frame, not the filter), then the filter update

@@ -70,7 +70,8 @@ class BaroPitotSample:
     t_s: float
     static_pa: float
     pitot_dp_pa: float  # NaN when the autopilot has no airspeed sensor (it reports 0 hPa)
-    temperature_c: float
+    temperature_c: float  # the barometer's die
+    pitot_temperature_c: float = math.nan  # the airspeed sensor's; NaN when not reported
 
 
 # the receiver latency each autopilot subtracts from a fix's arrival by default [s]: ArduPilot's u-blox driver
@@ -136,7 +137,9 @@ def from_scaled_imu(m: MavlinkMessage) -> ImuSample:
 
 def from_scaled_pressure(m: MavlinkMessage) -> BaroPitotSample:
     """SCALED_PRESSURE: hPa and cdegC. A differential pressure of exactly 0 hPa (or not finite) means no
-    sensor. ValueError for a static pressure outside :data:`STATIC_PA_RANGE` (module docstring)."""
+    sensor; ``temperature_press_diff`` (a MAVLink 2 extension) of 0 means not reported (the spec asks a real
+    0 °C to be sent as 1 cdegC). ValueError for a static pressure outside :data:`STATIC_PA_RANGE` (module
+    docstring)."""
     static_pa = m.press_abs * HPA_TO_PA
     lo, hi = STATIC_PA_RANGE
     if not lo <= static_pa <= hi:
@@ -148,6 +151,7 @@ def from_scaled_pressure(m: MavlinkMessage) -> BaroPitotSample:
         static_pa=static_pa,
         pitot_dp_pa=dp_pa if dp_pa != 0.0 and math.isfinite(dp_pa) else math.nan,
         temperature_c=m.temperature * 0.01,
+        pitot_temperature_c=diff_temp * 0.01 if (diff_temp := getattr(m, "temperature_press_diff", 0)) else math.nan,
     )
 
 

@@ -140,3 +140,75 @@ def test_a_branch_of_the_filter_has_its_own_fdi_and_wind_detector() -> None:
     a.wind_change.ins_step(1.0, 1.0, 0.0)
     assert b.fdi.level("pitot") == pytest.approx(1.0) and b.fdi.events == []
     assert b.wind_change is not a.wind_change and b.wind_change._cum == (0.0, 0.0)
+
+
+def test_the_ins_window_is_a_free_ins_from_the_filters_own_pose_at_its_start() -> None:
+    # the filter, fed a held wind by the air data, flies on at 20 m/s north; the accelerometers feel the shear's
+    # 0.5 m/s² from t = 0 on. Twelve seconds later the window (10 s) starts at t = 2 s, where the filter stood at
+    # 140 m: a free INS from there says 140 + 20·10 + ½·0.5·(12² − 2²)… less the 2 s of acceleration before the
+    # window, i.e. v = 20 + 0.5·10 = 25 m/s and p = 140 + 20·10 + ½·0.5·10² = 365 m
+    from vdm_aero.nav.airdata_fdi import WindChangeDetector
+
+    d = WindChangeDetector()
+    dt, a = 0.02, 0.5
+    for k in range(1, 601):
+        t = k * dt
+        d.ins_step(t, a * dt, 0.0, dt)
+        if k % 5 == 0:
+            d.air(t, 20.0, 0.0, (100.0 + 20.0 * t, 0.0), (20.0, 0.0))
+    fix = d.ins_window(12.0)
+    assert fix is not None
+    (pn, pe), (vn, ve), tau = fix
+    assert tau == pytest.approx(10.0, abs=0.01)
+    assert (vn, ve) == pytest.approx((25.0, 0.0), abs=1e-9)
+    assert (pn, pe) == pytest.approx((365.0, 0.0), abs=1e-9)  # the trapezoid is exact for a constant acceleration
+
+
+def test_a_wind_step_is_told_from_a_gust_that_goes_back() -> None:
+    # the INS feels nothing (straight, steady flight); the air data see the wind change: by 10 m/s to stay (a
+    # shear), or by 10 m/s and back (a gust). Anchored before it, the change since the anchor is the step
+    from vdm_aero.nav.airdata_fdi import WindChangeDetector
+
+    def run(back: bool) -> WindChangeDetector:
+        d = WindChangeDetector()
+        for k in range(1, 301):  # 30 s at 10 Hz
+            t = k * 0.1
+            d.ins_step(t, 0.0, 0.0, 0.1)
+            dw = 10.0 * min(max(t - 12.0, 0.0) / 3.0, 1.0)  # the wind ramps by 10 m/s over 3 s from 12 s
+            if back:
+                dw *= 1.0 - min(max(t - 17.0, 0.0) / 3.0, 1.0)  # and back over 3 s from 17 s
+            d.air(t, 20.0 - dw, 0.0, (20.0 * t, 0.0), (20.0, 0.0))  # air velocity = ground − wind
+            if k == 160:
+                d.anchor()
+        return d
+
+    step, gust = run(False), run(True)
+    # anchored at 16 s on the window's start (6 s, before the change); read at 30 s
+    assert step.anchored_s == pytest.approx(24.0, abs=0.11) and gust.anchored_s == pytest.approx(24.0, abs=0.11)
+    assert step.change_since_anchor() == pytest.approx(10.0, abs=0.1)
+    assert gust.change_since_anchor() == pytest.approx(0.0, abs=0.1)
+    assert step.recent_change() == pytest.approx(0.0, abs=0.05)  # both are over: a settled reading
+    step.release()
+    assert step.anchored_s is None and step.change_since_anchor() is None
+
+
+def test_the_gust_hands_the_new_wind_over() -> None:
+    from vdm_aero.nav.filter import WIND_RELEARN_SIGMA_M_S, NavConfig, NavFilter
+    from vdm_aero.nav.state import IDX
+    from vdm_aero.vehicle import load_vehicle
+
+    cfg = NavConfig(vehicle=load_vehicle("uav-2m"), origin_alt_m=50.0, mag_field_ned_ut=np.array([20.1, -4.9, 46.5]))
+    f = NavFilter("vdm", cfg)
+    f.initialise(0.0, np.zeros(3), np.array([19.0, 0.0, 0.0]), np.array([0.0, 0.0, -9.80665]), cfg.mag_field_ned_ut)
+    assert f.x is not None and f.engine is not None
+    f.x.wind_ned = np.array([3.0, -2.0, 0.1])
+    f.x.gust_ned = np.array([-6.0, 4.0, 0.3])  # what the gust soaked up of a shear
+    air = f.x.air_motion_ned.copy()
+    f._hand_gust_to_wind()
+    np.testing.assert_allclose(f.x.wind_ned, [-3.0, 2.0, 0.1])
+    np.testing.assert_allclose(f.x.gust_ned, [0.0, 0.0, 0.3])
+    np.testing.assert_allclose(f.x.air_motion_ned, air)  # the air motion the data saw is kept
+    w, g = IDX["wind"], IDX["gust"]
+    np.testing.assert_allclose(np.sqrt(np.diag(f.engine.P)[w]), WIND_RELEARN_SIGMA_M_S)
+    np.testing.assert_allclose(np.sqrt(np.diag(f.engine.P)[g]), f.process.gust_sigma_m_s)
+    assert not f.engine.P[w, :][:, g].any()

@@ -421,14 +421,14 @@ def _service_config(root: Path, design: dict[str, Path], name: str, edits: dict[
 @pytest.fixture(scope="module")
 def services(design_deim12: dict[str, Path], tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     """Two service configurations: ports as NAMED_VALUE_FLOAT with HIGHRES_IMU, and as DEBUG_FLOAT_ARRAY
-    with SCALED_IMU and the pitot's dynamic pressure; the models loaded once for both."""
+    with SCALED_IMU; the models loaded once for both."""
     from vdm_aero.nav.models import NavModels
 
     root = tmp_path_factory.mktemp("fault-service")
     cfgs = [
         _service_config(root, design_deim12, "nvf", {}),
         _service_config(root, design_deim12, "dfa", {
-            "ports.source": "debug_float_array", "ports.dynamic_pressure": "pitot",
+            "ports.source": "debug_float_array",
             "streams": {"SCALED_IMU": 50, "SCALED_PRESSURE": 10, "GPS_RAW_INT": 5}}),
     ]  # fmt: skip
     models = NavModels.load(cfgs[0].design_data, cfgs[0].deim_model, None, cfgs[0].vehicle)

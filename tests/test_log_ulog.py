@@ -136,6 +136,10 @@ def test_real_log_pitot_agrees_with_px4_airspeed(real: tuple[LogRead, Any, list[
     ias = float(np.median(ul.get_dataset("airspeed").data["indicated_airspeed_m_s"]))
     dp_med = float(np.median(dp))
     assert math.copysign(math.sqrt(2.0 * abs(dp_med) / RHO0_KG_M3), dp_med) == pytest.approx(ias, abs=1.0)
+    # the airspeed sensor's own temperature comes along (the density's, ahead of the heated IMU's): on this
+    # CubeOrange the IMU reads ~40 °C, the airspeed sensor the room's ~23 °C
+    temp, imu = r.log["pitot_temperature_c"], float(np.median(r.log["imu_temperature_c"]))
+    assert len(temp) == len(dp) and np.all((temp > 0.0) & (temp < 35.0)) and imu > np.max(temp) + 10.0
 
 
 # ---------------------------------------------------------------------------------------------- synthetic logs

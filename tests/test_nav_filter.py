@@ -133,27 +133,19 @@ def test_port_faults_take_the_gappy_path_and_all_lost_falls_back(world: dict[str
     assert e["vdm-deim"] < 2.0 * e["airspeed-dr"] + 10.0, e
 
 
-def test_cp_from_the_pitot_dynamic_pressure(world: dict[str, Any]) -> None:
-    """``ports.dynamic_pressure: pitot``: Cp = Δp / q̄_pitot. In cruise the pitot's q̄ and the ports' own
-    (FADS) q̄ are two measurements of one quantity, so the force coefficients agree; a pitot reading below
-    the useful range falls back to the ports' q̄."""
-    s = world["sensors"]
-    # one front end per variant: each keeps its own warm start for the FADS solve
-    fe_a, fe_b, fe_c = (PortFrontEnd(world["pressure"], {"deim": world["deim"]}, range_pa=500.0, noise_pa=0.2)
-                        for _ in range(3))  # fmt: skip
-    cz_fads, cz_pitot = [], []
-    for t in np.arange(100.0, 160.0, 5.0):
-        i = int(np.searchsorted(s["ports_t_s"], t))
-        j = int(np.searchsorted(s["pitot_t_s"], s["ports_t_s"][i]))
-        dp, q_pitot = s["ports_dp_pa"][i], float(s["pitot_dp_pa"][j])
-        a = fe_a.process(t, dp, 1.2, np.zeros(3), np.zeros(3))
-        b = fe_b.process(t, dp, 1.2, np.zeros(3), np.zeros(3), qbar_pa=q_pitot)
-        c = fe_c.process(t, dp, 1.2, np.zeros(3), np.zeros(3), qbar_pa=5.0)  # no airspeed: below MIN_QBAR_PA
-        assert a.airdata is not None and b.qbar_pa == q_pitot and c.qbar_pa == a.qbar_pa
-        np.testing.assert_allclose(c.coeffs["deim"], a.coeffs["deim"])
-        cz_fads.append(a.coeffs["deim"][2])
-        cz_pitot.append(b.coeffs["deim"][2])
-    assert np.median(np.abs(np.array(cz_pitot) / np.array(cz_fads) - 1.0)) < 0.1
+def test_the_density_takes_the_airspeed_sensors_temperature_not_the_heated_imus(world: dict[str, Any]) -> None:
+    """A heated IMU reads 45 °C: with the airspeed sensor's temperature the density is the truth's; without
+    it (a pitot that reports none) the board's clamped to 35 °C, some 7 % low on a 15 °C day."""
+    s = dict(world["sensors"])
+    s["imu_temperature_c"] = np.full(len(s["imu_t_s"]), 45.0)
+    rho_true = float(np.interp(60.0, world["truth"]["t_s"], world["truth"]["rho_kg_m3"]))
+    got = {}
+    for name, temps in (("airspeed", s["pitot_temperature_c"]), ("none", np.full(len(s["pitot_t_s"]), np.nan))):
+        r = _runner(world, ("ins",), {**s, "pitot_temperature_c": temps})
+        r.run_until(60.0)
+        got[name] = r.filters["ins"].inputs.rho_kg_m3 / rho_true
+    assert got["airspeed"] == pytest.approx(1.0, abs=0.002), got
+    assert got["none"] == pytest.approx((15.0 + 273.15) / (35.0 + 273.15), abs=0.01), got
 
 
 def test_fixes_are_never_locked_out_for_good(world: dict[str, Any]) -> None:

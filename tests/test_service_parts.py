@@ -65,6 +65,10 @@ def test_units_from_the_mock_encoders() -> None:
     assert (p.static_pa, p.pitot_dp_pa, p.temperature_c) == pytest.approx((100125.0, 61.0, 15.3), rel=1e-6)
     no_pitot = units.from_scaled_pressure(_roundtrip(mav.scaled_pressure_encode(2000, 1001.25, 0.0, 1530, 0)))
     assert math.isnan(no_pitot.pitot_dp_pa)
+    # the airspeed sensor's temperature (a MAVLink 2 extension): cdegC, 0 = not reported
+    assert math.isnan(p.pitot_temperature_c)
+    warm = units.from_scaled_pressure(_roundtrip(mav.scaled_pressure_encode(2000, 1001.25, 0.61, 4480, 1234)))
+    assert warm.pitot_temperature_c == pytest.approx(12.34) and warm.temperature_c == pytest.approx(44.8)
     h = units.from_highres_imu(_roundtrip(mav.highres_imu_encode(2_500, 0.1, 0.2, -9.8, 0.01, 0.02, 0.03, 0.2, -0.05,
                                                                  0.45, 1001.0, 0.6, 100.0, 31.0, 0x1FFF)))  # fmt: skip
     np.testing.assert_allclose(h.mag_b_ut, [20.0, -5.0, 45.0], rtol=1e-6)  # gauss → µT

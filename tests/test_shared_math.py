@@ -10,7 +10,7 @@ import pymap3d
 import pytest
 from scipy.spatial.transform import Rotation
 
-from vdm_aero.atmosphere import density_kg_m3, isa, pressure_altitude_m
+from vdm_aero.atmosphere import density_kg_m3, isa, outside_air_temperature_c, pressure_altitude_m
 from vdm_aero.geodesy import LocalFrame
 from vdm_aero.lag import FirstOrderLag, first_order_lag, lag_coefficients
 from vdm_aero.rotation import (
@@ -82,6 +82,17 @@ def test_isa_against_published_table() -> None:
         assert pressure_altitude_m(pp) == pytest.approx(h, abs=1e-6)
     assert density_kg_m3(101325.0, 288.15) == pytest.approx(1.2250, rel=1e-4)
     assert isa(500.0, 10.0)[0] == isa(500.0)[0] and isa(500.0, 10.0)[1] == isa(500.0)[1] + 10.0
+
+
+def test_the_outside_air_temperature_is_picked_as_ardupilot_picks_it() -> None:
+    # AP_Baro::get_external_temperature(): the airspeed sensor's while it reads, else the board's clamped to
+    # 35 °C (INTERNAL_TEMPERATURE_CLAMP); a reading outside the sensors' operating range is no reading
+    assert outside_air_temperature_c(12.5, 45.0) == 12.5
+    assert outside_air_temperature_c(math.nan, 45.0) == 35.0
+    assert outside_air_temperature_c(math.nan, 21.0) == 21.0
+    assert outside_air_temperature_c(-60.0, 21.0) == 21.0 and outside_air_temperature_c(120.0, 40.0) == 35.0
+    got = outside_air_temperature_c(np.array([10.0, np.nan, 90.0]), np.array([44.0, 44.0, 20.0]))
+    np.testing.assert_array_equal(got, [10.0, 35.0, 20.0])
 
 
 def test_geodesy_against_pymap3d() -> None:

@@ -242,6 +242,19 @@ def test_the_pitot_tubing_lag_is_first_order() -> None:
     assert np.all(np.diff(out) > 0.0)
 
 
+def test_the_airspeed_sensor_reads_its_own_warmth() -> None:
+    inst = PitotInstallation(0.0, 0.0, 0.0, 0.0, (0.0, 0.0), lag_s=0.0, temperature_offset_k=5.5)
+    p = PitotAirspeed(PITOT_GRADES["ms4525do-001d"], np.random.default_rng(0), installation=inst)
+    assert p.sample(0.0, 200.0, 12.0).temperature_c == pytest.approx(17.5)
+    kind = PitotAirspeed(PITOT_GRADES["ms4525do-001d"], np.random.default_rng(0))
+    assert kind.sample(0.0, 200.0, 12.0).temperature_c == 12.0
+    warm = [draw_installation(HARSH, np.random.default_rng(k), part_index=0).pitot for k in range(20)]
+    offsets = [w.temperature_offset_k for w in warm if w is not None]
+    assert len(offsets) == 20 and 0.0 <= min(offsets) < max(offsets) <= 8.0
+    off = draw_installation(HARSH - {"pitot-temperature"}, np.random.default_rng(3), part_index=0).pitot
+    assert off is not None and off.temperature_offset_k == 0.0
+
+
 # ------------------------------------------------------------------------------------------- GNSS
 def test_gnss_latency_and_the_time_an_autopilot_logs() -> None:
     grade = GNSS_GRADES["ublox-neo-m9n"]

@@ -21,6 +21,7 @@ __all__ = [
     "TROPOPAUSE_M",
     "density_kg_m3",
     "isa",
+    "outside_air_temperature_c",
     "pressure_altitude_m",
 ]
 
@@ -33,6 +34,12 @@ ISA_EXPONENT: Final = G0_M_S2 / (R_AIR_J_KG_K * LAPSE_K_M)  # 5.25588
 TROPOPAUSE_M: Final = 11000.0
 
 X = TypeVar("X", float, FloatArray)
+
+# The outside-air temperature an aircraft has, as ArduPilot's AP_Baro::get_external_temperature() picks it:
+# the airspeed sensor's (its die sits in or near the airflow), else the board's clamped to 35 °C, because a
+# board sensor "tends to read high, often 30 degrees above the actual temperature" (its comment).
+BOARD_TEMPERATURE_CLAMP_C: Final = 35.0  # ArduPilot INTERNAL_TEMPERATURE_CLAMP
+AIRSPEED_TEMPERATURE_RANGE_C: Final = (-40.0, 85.0)  # a reading outside the sensors' operating range is a fault
 
 
 def isa(alt_m: float, isa_delta_t_k: float = 0.0) -> tuple[float, float, float]:
@@ -48,6 +55,18 @@ def isa(alt_m: float, isa_delta_t_k: float = 0.0) -> tuple[float, float, float]:
 def density_kg_m3(pressure_pa: X, temperature_k: X) -> X:
     """Dry-air density from static pressure [Pa] and temperature [K] (ideal gas)."""
     return pressure_pa / (R_AIR_J_KG_K * temperature_k)
+
+
+def outside_air_temperature_c(airspeed_sensor_c: X, board_c: X) -> X:
+    """The best outside-air temperature [°C]: the airspeed sensor's where it reads (finite and within
+    :data:`AIRSPEED_TEMPERATURE_RANGE_C`; NaN: no reading), else the board's (IMU or barometer die) clamped
+    to :data:`BOARD_TEMPERATURE_CLAMP_C`. Element-wise for arrays."""
+    lo, hi = AIRSPEED_TEMPERATURE_RANGE_C
+    a = np.asarray(airspeed_sensor_c, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        ok = np.isfinite(a) & (a >= lo) & (a <= hi)
+    out = np.where(ok, a, np.minimum(np.asarray(board_c, dtype=np.float64), BOARD_TEMPERATURE_CLAMP_C))
+    return out if out.ndim else float(out)  # type: ignore[return-value]
 
 
 def pressure_altitude_m(pressure_pa: X) -> X:

@@ -7,8 +7,15 @@ A user has no wind tunnel; the aircraft's own sensors weigh the aerodynamics in 
 
 with m, I, the propeller and the servo map from the **nominal vehicle description** (never the as-built
 truth), f_IMU and ω from the IMU (smoothed; ω̇ from a Savitzky–Golay derivative), the dynamic pressure
-from the pitot, ρ from the barometer and the IMU's temperature. Dividing by q̄·S (·b, c, b) gives the
-coefficient targets at the port sample times; Cp at the ports is Δp/q̄.
+from the pitot, ρ from the barometer and the best temperature the aircraft has (the airspeed sensor's, else
+the IMU's clamped to 35 °C: :func:`~vdm_aero.atmosphere.outside_air_temperature_c`). Dividing by q̄·S
+(·b, c, b) gives the coefficient targets at the port sample times.
+
+**Cp at the ports is Δp / q̄_FADS**, with q̄ from the ports' own air-data solve (the FADS port model of the
+design data set, :class:`vdm_aero.nav.ports_frontend.PortFrontEnd`), exactly as at run time: the force model
+must keep working when the pitot fails, so its inputs may not lean on the pitot. Normalising by the pitot's
+q̄ here and by the FADS q̄ at run time fed the net inputs scaled by q̄_pitot/q̄_FADS, an error of the pitot's
+calibration and of the as-built ports that it never saw in training.
 
 **Nuisance parameters estimated jointly.** The propeller's installed thrust (two factors on the nominal
 thrust terms ρk_t0·n² and −ρk_t1·n·u), its torque (one factor) and the accelerometer bias (three) are
@@ -24,6 +31,7 @@ The correction net is then trained on (ports → target − DEIM) with the same 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,10 +40,12 @@ from typing import Any
 import numpy as np
 
 from vdm_aero._typing import COEFF_NAMES, F64Array
-from vdm_aero.atmosphere import density_kg_m3
+from vdm_aero.atmosphere import density_kg_m3, outside_air_temperature_c
 from vdm_aero.errors import UserInputError
 from vdm_aero.flightlog import SensorLog
 from vdm_aero.model import AeroModel, load_diagnostics, read_model_yaml, sha256_file, write_model
+from vdm_aero.nav.design_fit import DesignFlightData, PortPressureModel
+from vdm_aero.nav.ports_frontend import PortFrontEnd
 from vdm_aero.vehicle import VehicleDescription
 
 __all__ = [
@@ -71,16 +81,19 @@ RIDGE = 1e-6  # relative ridge on the port weights of the joint fit (the nuisanc
 @dataclass(frozen=True)
 class TargetSettings:
     """How targets are formed: the output rate [Hz] (port samples are decimated to it), the smoothing
-    half-window of the IMU [s] and the polynomial order of the Savitzky–Golay fit."""
+    half-window of the IMU [s], the polynomial order of the Savitzky–Golay fit, and the port transducers'
+    noise 1σ [Pa] that weighs the FADS solve (the service's ``ports.noise_pa``)."""
 
     rate_hz: float = 25.0
     half_window_s: float = 0.06
     order: int = 2
+    port_noise_pa: float = 0.2
 
 
 @dataclass(frozen=True, eq=False)
 class CalibrationData:
-    """Per sample (K at the target rate): time [s], port Cp (K, n_s), dynamic pressure [Pa], density
+    """Per sample (K at the target rate): time [s], port Cp (K, n_s) = Δp / q̄_FADS, the pitot's dynamic
+    pressure [Pa] that scales the targets, density
     [kg/m³], airspeed [m/s], throttle, specific force f_b [m/s²], rates ω_b [rad/s], ω̇_b [rad/s²], and
     the regressors that carry the nuisance parameters (per coefficient, see :func:`estimate_nuisance`)."""
 
@@ -123,10 +136,34 @@ def _hold(t: F64Array, y: F64Array, t_out: F64Array) -> F64Array:
     return np.asarray(y[i])
 
 
+def ports_dynamic_pressure(
+    pressure_model: PortPressureModel,
+    dp_pa: F64Array,
+    rho_kg_m3: F64Array,
+    omega_b: F64Array,
+    controls_rad: F64Array,
+    noise_pa: float,
+) -> F64Array:
+    """q̄ [Pa] of the ports' air-data solve at each sample (K,), NaN where it has none: the same solve, warm
+    start and limits as the run time's :class:`PortFrontEnd`."""
+    fe = PortFrontEnd(pressure_model, {}, range_pa=math.inf, noise_pa=noise_pa)
+    out = np.full(len(dp_pa), math.nan)
+    for i in range(len(dp_pa)):
+        solved = fe.air_data(dp_pa[i], float(rho_kg_m3[i]), omega_b[i], controls_rad[i])
+        if solved is not None:
+            out[i] = solved[2]
+    return out
+
+
 def form_targets(
-    log: SensorLog, vehicle: VehicleDescription, model: AeroModel, settings: TargetSettings | None = None
+    log: SensorLog,
+    vehicle: VehicleDescription,
+    model: AeroModel,
+    pressure_model: PortPressureModel,
+    settings: TargetSettings | None = None,
 ) -> CalibrationData:
-    """Aerodynamic coefficient targets from a flight's sensors (see the module docstring)."""
+    """Aerodynamic coefficient targets from a flight's sensors (see the module docstring); Cp normalised by
+    the q̄ of ``pressure_model``'s air-data solve, as at run time."""
     st = settings or TargetSettings()
     where = str(log.path)
     names = model.port_names
@@ -147,16 +184,23 @@ def form_targets(
     t = t_p[sel]
     dp = log["ports_dp_pa"][sel][:, cols]
     qbar = np.interp(t, log["pitot_t_s"], log["pitot_dp_pa"])
-    keep = qbar > MIN_QBAR_PA
-    t, dp, qbar = t[keep], dp[keep], qbar[keep]
     p_static = np.interp(t, log["baro_t_s"], log["baro_pa"])
-    temp_k = np.interp(t, t_imu, log["imu_temperature_c"]) + 273.15
-    rho = density_kg_m3(p_static, temp_k)
-    v_air = np.sqrt(2.0 * qbar / rho)
+    board_c = np.interp(t, t_imu, log["imu_temperature_c"])
+    airspeed_c = np.interp(t, log["pitot_t_s"], log["pitot_temperature_c"])
+    rho = density_kg_m3(p_static, outside_air_temperature_c(airspeed_c, board_c) + 273.15)
     f_b, _ = _savgol(t_imu, log["imu_accel_b_m_s2"], t, st.half_window_s, st.order)
     omega, omega_dot = _savgol(t_imu, log["imu_gyro_b_rad_s"], t, st.half_window_s, st.order)
     pwm = _hold(log["servo_t_s"], log["servo_pwm_us"], t)
-    throttle = np.asarray(vehicle.servos.deflections_rad(pwm)[3], dtype=np.float64)
+    *surfaces, throttle = (np.asarray(v, dtype=np.float64) for v in vehicle.servos.deflections_rad(pwm))
+    controls = np.stack(surfaces, axis=1)
+    q_ports = ports_dynamic_pressure(pressure_model, dp, rho, omega, controls, st.port_noise_pa)
+    keep = (qbar > MIN_QBAR_PA) & (q_ports > MIN_QBAR_PA)
+    if int(keep.sum()) < 10:
+        raise UserInputError(f"{where}: fewer than 10 samples with the pitot and the ports' air data above "
+                             f"{MIN_QBAR_PA:g} Pa: nothing to calibrate on")  # fmt: skip
+    t, dp, qbar, q_ports, rho, throttle = t[keep], dp[keep], qbar[keep], q_ports[keep], rho[keep], throttle[keep]
+    f_b, omega, omega_dot = f_b[keep], omega[keep], omega_dot[keep]
+    v_air = np.sqrt(2.0 * qbar / rho)
 
     ref = model.reference
     qs = qbar * ref.area_m2
@@ -177,7 +221,7 @@ def form_targets(
     torque_term = -prop.spin * np.asarray(torque) / (qs * ref.span_m)
     return CalibrationData(
         t_s=t,
-        cp=dp / qbar[:, None],
+        cp=dp / q_ports[:, None],
         qbar_pa=qbar,
         rho_kg_m3=rho,
         airspeed_m_s=v_air,
@@ -298,20 +342,23 @@ def calibrate_model(
     vehicle: VehicleDescription,
     out: Path,
     *,
+    design_data: Path,
     grid: str = "quick",
     seed: int = 0,
     max_epochs: int = 3000,
     settings: TargetSettings | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> dict[str, Any]:
-    """Train the correction net of ``model_dir``'s DEIM model on ``log`` and write the model ``out``."""
+    """Train the correction net of ``model_dir``'s DEIM model on ``log`` and write the model ``out``
+    (``design_data``: the design data set, whose FADS port model normalises Cp as at run time)."""
     from vdm_aero.train_correction import GRIDS, check_onnx_matches, export_onnx, grid_search
 
     if grid not in GRIDS:
         raise UserInputError(f"--grid: unknown grid {grid!r} (known: {', '.join(GRIDS)})")
     model = AeroModel.load(model_dir).with_correction(None)
     vehicle.check_reference(model.reference)
-    data = form_targets(log, vehicle, model, settings)
+    pressure = PortPressureModel.fit(DesignFlightData.load(design_data, model.port_names))
+    data = form_targets(log, vehicle, model, pressure, settings)
     fit = estimate_nuisance(data, model)
     y = fit.targets(data)
     resid = y - model.predict_batch(data.cp, linear_only=True)
@@ -343,7 +390,10 @@ def calibrate_model(
         "targets": {
             "rate_hz": (settings or TargetSettings()).rate_hz,
             "half_window_s": (settings or TargetSettings()).half_window_s,
-            "qbar": "pitot",
+            "qbar": "pitot",  # the targets' q̄
+            "cp_qbar": "ports",  # Cp = Δp / q̄ of the ports' air-data solve, as at run time
+            "port_noise_pa": (settings or TargetSettings()).port_noise_pa,
+            "design_data": str(design_data),
         },
         "nuisance": fit.to_dict(),
         "grid": grid,

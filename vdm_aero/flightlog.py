@@ -5,7 +5,9 @@ A flight-log directory holds:
 * ``flight.yaml``: format, name, source (scenario, vehicle, seed), duration, port names, stream rates;
 * ``sensors.npz``: what a user's aircraft records (the only file :func:`load_sensor_log` reads):
   ``imu_t_s`` (N,), ``imu_accel_b_m_s2`` (N, 3), ``imu_gyro_b_rad_s`` (N, 3), ``imu_temperature_c`` (N,);
-  ``ports_t_s`` (M,), ``ports_dp_pa`` (M, P) (Δp = p_port − p_static); ``pitot_t_s``, ``pitot_dp_pa``;
+  ``ports_t_s`` (M,), ``ports_dp_pa`` (M, P) (Δp = p_port − p_static); ``pitot_t_s``, ``pitot_dp_pa``,
+  ``pitot_temperature_c`` (the airspeed sensor's temperature, NaN where it reports none; optional: a log
+  written before 2026-11-26 reads as all NaN);
   ``baro_t_s``, ``baro_pa``; ``servo_t_s``, ``servo_pwm_us`` (K, 4, ArduPlane order aileron, elevator,
   throttle, rudder); ``gnss_t_s`` (time of validity), ``gnss_lat_deg``, ``gnss_lon_deg``, ``gnss_alt_m``,
   ``gnss_v_ned_m_s`` (G, 3); ``mag_t_s``, ``mag_field_b_t`` (H, 3). A stream the aircraft lacks (no pitot)
@@ -48,6 +50,7 @@ SENSOR_KEYS: dict[str, int] = {
     "ports_dp_pa": 2,
     "pitot_t_s": 1,
     "pitot_dp_pa": 1,
+    "pitot_temperature_c": 1,
     "baro_t_s": 1,
     "baro_pa": 1,
     "servo_t_s": 1,
@@ -61,10 +64,11 @@ SENSOR_KEYS: dict[str, int] = {
     "mag_field_b_t": 2,
 }
 """Every sensor array and its number of dimensions."""
+_OPTIONAL = {"pitot_temperature_c": "pitot_t_s"}  # filled with NaN, one per row of its stream, when absent
 _STREAMS = {
     "imu": ("imu_t_s", "imu_accel_b_m_s2", "imu_gyro_b_rad_s", "imu_temperature_c"),
     "ports": ("ports_t_s", "ports_dp_pa"),
-    "pitot": ("pitot_t_s", "pitot_dp_pa"),
+    "pitot": ("pitot_t_s", "pitot_dp_pa", "pitot_temperature_c"),
     "baro": ("baro_t_s", "baro_pa"),
     "servo": ("servo_t_s", "servo_pwm_us"),
     "gnss": ("gnss_t_s", "gnss_lat_deg", "gnss_lon_deg", "gnss_alt_m", "gnss_v_ned_m_s"),
@@ -167,7 +171,9 @@ def load_sensor_log(path: str | Path) -> SensorLog:
     f = root / "sensors.npz"
     try:
         with np.load(f, allow_pickle=False) as z:
-            arrays = {k: np.asarray(z[k], dtype=np.float64) for k in SENSOR_KEYS}
+            arrays = {k: np.asarray(z[k], dtype=np.float64) for k in SENSOR_KEYS if k in z.files or k not in _OPTIONAL}
+        for k, rows in _OPTIONAL.items():
+            arrays.setdefault(k, np.full(len(arrays[rows]), np.nan))
     except KeyError as e:
         raise FlightLogError(f"{f}: array {e} missing") from None
     except (OSError, ValueError) as e:

@@ -282,6 +282,11 @@ class AeroModel:
                 raise ModelError(f"{root / DEIM_FILE}: the port basis Us cannot be inverted") from None
         if not (np.isfinite(linear.Ms).all() and np.isfinite(linear.M0).all()):
             raise ModelError(f"{root / DEIM_FILE}: the force operator overflows (values out of any physical range)")
+        cal = meta.get("calibration")
+        if isinstance(cal, Mapping) and (cal.get("targets") or {}).get("cp_qbar") != "ports":
+            # calibrated before Cp was normalised by the ports' own q̄: its net expects Δp / q̄_pitot inputs
+            raise ModelError(f"{root / 'model.yaml'}: calibration: its net was trained on Cp = Δp / q̄_pitot, "
+                             "the run time feeds Δp / q̄ of the ports' air data: calibrate it again")  # fmt: skip
         net = root / NET_FILE if NET_FILE in files else None
         return cls(linear=linear, ports=ports, reference=reference, meta=meta, net_path=net, path=root)
 

@@ -50,7 +50,8 @@ def register(sub: Any) -> None:
                    help="harsh: comma-separated effects to switch off (docs/flight-sim.md lists them)")  # fmt: skip
     n.add_argument("--seeds", type=int, default=20, help="seeds per scenario")
     n.add_argument("--outage-s", default="30,60,120,300", help="outage lengths [s], comma-separated")
-    n.add_argument("--modes", default="all", help="comma-separated navigation modes (default all)")
+    n.add_argument("--modes", default="all", help="comma-separated navigation modes (default all), or the "
+                   "ablations vdm-no-force, vdm-no-net, vdm-no-pitot")  # fmt: skip
     n.add_argument("--out", type=Path, default=Path("out/bench/nav-drift"), help="report directory")
     n.add_argument("--models", type=Path, help="directory with data/uav-envelope and models/ (default: built in --out)")
     n.add_argument("--calibration-minutes", type=float, default=10.0, help="in-flight calibration length [min]")
@@ -138,7 +139,7 @@ def _list(text: str, known: Sequence[str], what: str) -> tuple[str, ...]:
 
 
 def run_nav_drift_cli(args: argparse.Namespace) -> int:
-    from vdm_aero.nav.filter import MODES
+    from vdm_aero.nav.filter import ABLATIONS, MODES
     from vdm_aero_cli.nav_bench import (
         SCENARIOS,
         BenchSpec,
@@ -159,7 +160,7 @@ def run_nav_drift_cli(args: argparse.Namespace) -> int:
     if args.seeds < 1:
         raise UserInputError("bench nav-drift: --seeds must be at least 1")
     scenarios = _list(args.scenario, list(SCENARIOS), "scenario")
-    modes = _list(args.modes, list(MODES), "modes")
+    modes = tuple(MODES) if args.modes == "all" else _list(args.modes, [*MODES, *ABLATIONS], "modes")
     if args.cost_seeds < 0:
         raise UserInputError("bench nav-drift: --cost-seeds must be at least 0")
     harsh = "harsh"
@@ -177,6 +178,10 @@ def run_nav_drift_cli(args: argparse.Namespace) -> int:
         for p in (art.dataset_dir / "dataset.yaml", art.deim_dir / "model.yaml", art.nn_dir / "model.yaml"):
             if not p.is_file():
                 raise UserInputError(f"bench nav-drift: --models: {p} missing (run once without --models to build it)")
+        from vdm_aero.model import AeroModel
+
+        for d in (art.deim_dir, art.nn_dir):
+            AeroModel.load(d)  # a model this version refuses fails now, not after the fleet's calibrations
     # --json: stdout carries the JSON alone; what the building steps print goes to stderr
     with contextlib.redirect_stdout(sys.stderr) if args.json else contextlib.nullcontext():
         if args.models is None:

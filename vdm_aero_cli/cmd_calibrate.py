@@ -29,13 +29,16 @@ def register(sub: Any) -> None:
         "calibrate",
         help="train the correction net from a calibration flight's sensors",
         description="Form aerodynamic force and moment targets from a flight's IMU, pitot, barometer and servo "
-        "outputs with the nominal vehicle description, estimate the thrust, torque and accelerometer-bias "
+        "outputs with the nominal vehicle description (Cp normalised by the ports' own air-data q̄, as at run "
+        "time), estimate the thrust, torque and accelerometer-bias "
         "nuisances jointly, train the correction net on (ports → target − DEIM) and write model M2.",
     )
     c.add_argument("--flight", type=Path, required=True, metavar="LOG",
                    help="the calibration flight: a flight-log directory, or an autopilot log with the ports "
                    "(.tlog; DataFlash .bin and ULog .ulg carry no ports)")  # fmt: skip
     c.add_argument("--model", type=Path, required=True, metavar="M", help="the DEIM model (design data)")
+    c.add_argument("--design-data", type=Path, required=True, metavar="D",
+                   help="the design data set: its FADS port model normalises Cp as the run time does")  # fmt: skip
     c.add_argument("--vehicle", required=True, metavar="V", help="nominal vehicle description (file or name)")
     c.add_argument("--out", type=Path, required=True, metavar="M2", help="calibrated model directory to write")
     c.add_argument("--window", metavar="START:END", help="use only this part of the flight [s]")
@@ -117,7 +120,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
     if not 1.0 <= args.rate <= 100.0:
         raise UserInputError(f"--rate: expected 1–100 Hz, got {args.rate}")
     with progress_bar("training the correction net", 1) as update:
-        summary = calibrate_model(args.model, log, vehicle, args.out, grid=args.grid, seed=args.seed,
+        summary = calibrate_model(args.model, log, vehicle, args.out, design_data=args.design_data,
+                                  grid=args.grid, seed=args.seed,
                                   max_epochs=args.max_epochs, settings=TargetSettings(rate_hz=args.rate),
                                   progress=update)  # fmt: skip
     if args.json:

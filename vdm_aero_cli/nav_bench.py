@@ -40,7 +40,7 @@ import numpy as np
 from vdm_aero._typing import F64Array
 from vdm_aero.flightlog import SensorLog
 from vdm_aero.geodesy import LocalFrame
-from vdm_aero.nav.filter import MODES, NavConfig, NavFilter
+from vdm_aero.nav.filter import ABLATIONS, MODES, NavConfig, NavFilter
 from vdm_aero.nav.models import NavModels
 from vdm_aero.nav.stream import LogRunner, NavStream, SolutionRecorder
 from vdm_aero.rotation import dcm_from_quat, euler_from_quat, quat_log, quat_multiply
@@ -225,7 +225,7 @@ def _apply_fault(sensors: dict[str, F64Array], fault: str | None, t_out: float,
     failures' parameters are drawn from ``rng`` within the ranges of the module's sources."""
     s = dict(sensors)
     if fault == "no-airspeed":
-        s["pitot_t_s"], s["pitot_dp_pa"] = np.zeros(0), np.zeros(0)
+        s["pitot_t_s"], s["pitot_dp_pa"], s["pitot_temperature_c"] = np.zeros(0), np.zeros(0), np.zeros(0)
         return s
     if fault not in ("pitot-blocked", "pitot-icing", "pitot-water"):
         return s
@@ -778,7 +778,7 @@ def bars(summary: dict[str, Any], theory: Sequence[dict[str, Any]] = ()) -> list
                     f"{th['ratio']:.2f}× ({th['seeds']} seeds)", 0.5 * lo <= th["free_median_m"] <= 2.0 * hi,
                     "the theory is linear, small-angle and drops the magnetometer-free heading's start error; "
                     "a median of few seeds of a Hoyt-distributed error is itself uncertain by tens of %"))  # fmt: skip
-    modes = sorted({m for per in summary.values() for m in per}, key=list(MODES).index)
+    modes = sorted({m for per in summary.values() for m in per}, key=[*MODES, *ABLATIONS].index)
     for mode in modes:
         keyed = [(k, per[mode]) for k, per in summary.items() if mode in per and not k.startswith("only:")]
         if not keyed:
@@ -1001,7 +1001,7 @@ def build_artifacts(out: Path, *, calibration_minutes: float = 10.0, max_epochs:
     from vdm_aero_cli.calibration_study import design_models
 
     art = NavArtifacts.under(out, calibration_minutes)
-    if (art.nn_dir / "model.yaml").is_file() and (art.deim_dir / "model.yaml").is_file():
+    if _cached(art.nn_dir) and _cached(art.deim_dir):
         return art
     if progress:
         progress("design data set, DEIM and the design net")
@@ -1010,6 +1010,21 @@ def build_artifacts(out: Path, *, calibration_minutes: float = 10.0, max_epochs:
         progress("calibration flight of the as-built aircraft and the in-flight calibration of the net")
     _calibrate(art, "kind", 0, art.nn_dir, calibration_minutes, max_epochs, seed)
     return art
+
+
+def _cached(model_dir: Path) -> bool:
+    """A model left by an earlier run that this version still loads (one calibrated by an older version is
+    refused by :meth:`AeroModel.load`, and made again)."""
+    from vdm_aero.errors import ModelError
+    from vdm_aero.model import AeroModel
+
+    if not (model_dir / "model.yaml").is_file():
+        return False
+    try:
+        AeroModel.load(model_dir)
+    except ModelError:
+        return False
+    return True
 
 
 # another day's weather for each airframe's calibration flight: wind 2–8 m/s from anywhere, ISA ± 10 K
@@ -1022,7 +1037,7 @@ def calibrate_airframe(artifacts: NavArtifacts, world: str, airframe: int, max_e
     """A fleet airframe's calibrated net, from its own calibration flight in ``world`` on another day's weather
     (cached: an existing model is reused). The calibration length is the base calibration's."""
     nn_dir = models_for(artifacts, world, airframe).nn_dir
-    if not (nn_dir / "model.yaml").is_file():
+    if not _cached(nn_dir):
         minutes = float(artifacts.nn_dir.name.rsplit("-", 1)[1].removesuffix("min"))
         _calibrate(artifacts, world, airframe, nn_dir, minutes, max_epochs, seed)
     return nn_dir
@@ -1050,7 +1065,8 @@ def _calibrate(art: NavArtifacts, world: str, airframe: int, nn_dir: Path, minut
     else:
         log_dir = flights / "calibration"
     record_flight(sc, log_dir, duration_s=CALIBRATION_START_S + 60.0 * minutes)
-    calibrate_model(art.deim_dir, load_sensor_log(log_dir), load_vehicle("uav-2m"), nn_dir, grid="quick", seed=seed,
+    calibrate_model(art.deim_dir, load_sensor_log(log_dir), load_vehicle("uav-2m"), nn_dir,
+                    design_data=art.dataset_dir, grid="quick", seed=seed,
                     max_epochs=max_epochs, settings=TargetSettings(rate_hz=10.0))  # fmt: skip
 
 

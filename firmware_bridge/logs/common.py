@@ -9,6 +9,7 @@ boot time, made continuous across reboots), the clock the service runs its filte
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -103,8 +104,9 @@ class StreamBuilder:
     def baro(self, t_s: float, pressure_pa: float) -> None:
         self._rows["baro"].append((t_s, pressure_pa))
 
-    def pitot(self, t_s: float, dp_pa: float) -> None:
-        self._rows["pitot"].append((t_s, dp_pa))
+    def pitot(self, t_s: float, dp_pa: float, temperature_c: float = math.nan) -> None:
+        """Differential pressure [Pa] and the airspeed sensor's temperature [°C] (NaN: none in the log)."""
+        self._rows["pitot"].append((t_s, dp_pa, temperature_c))
 
     def mag(self, t_s: float, field_b_ut: Vec) -> None:
         self._rows["mag"].append((t_s, *(v * UT_TO_T for v in field_b_ut)))
@@ -140,7 +142,7 @@ class StreamBuilder:
         n_p = len(self.port_names)
         imu = self._table("imu", 8, report)
         ports = self._table("ports", 1 + n_p, report)
-        pitot = self._table("pitot", 2, report)
+        pitot = self._table("pitot", 3, report)
         baro = self._table("baro", 2, report)
         servo = self._table("servo", 5, report)
         gnss = self._table("gnss", 7, report)
@@ -148,7 +150,8 @@ class StreamBuilder:
         arrays: dict[str, F64Array] = {
             "imu_t_s": imu[:, 0], "imu_gyro_b_rad_s": imu[:, 1:4], "imu_accel_b_m_s2": imu[:, 4:7],
             "imu_temperature_c": imu[:, 7], "ports_t_s": ports[:, 0], "ports_dp_pa": ports[:, 1:],
-            "pitot_t_s": pitot[:, 0], "pitot_dp_pa": pitot[:, 1], "baro_t_s": baro[:, 0], "baro_pa": baro[:, 1],
+            "pitot_t_s": pitot[:, 0], "pitot_dp_pa": pitot[:, 1], "pitot_temperature_c": pitot[:, 2],
+            "baro_t_s": baro[:, 0], "baro_pa": baro[:, 1],
             "servo_t_s": servo[:, 0], "servo_pwm_us": servo[:, 1:], "gnss_t_s": gnss[:, 0],
             "gnss_lat_deg": gnss[:, 1], "gnss_lon_deg": gnss[:, 2], "gnss_alt_m": gnss[:, 3],
             "gnss_v_ned_m_s": gnss[:, 4:7], "mag_t_s": mag[:, 0], "mag_field_b_t": mag[:, 1:],

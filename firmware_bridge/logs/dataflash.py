@@ -147,7 +147,8 @@ class _Converter:
     def _pitot(self, m: Any, t: float) -> bool:
         if not _finite(t, m.DiffPress):
             return False
-        self.builder.pitot(t, m.DiffPress)
+        temp = getattr(m, "Temp", math.nan)  # ARSP.Temp [°C], the airspeed sensor's die
+        self.builder.pitot(t, m.DiffPress, float(temp) if _finite(temp) else math.nan)
         return True
 
     def _mag(self, m: Any, t: float) -> bool:

@@ -191,7 +191,7 @@ class _Reader:
             t = self.clock.filter_s(s.t_s)
             self.builder.baro(t, s.static_pa)
             if math.isfinite(s.pitot_dp_pa):
-                self.builder.pitot(t, s.pitot_dp_pa)
+                self.builder.pitot(t, s.pitot_dp_pa, s.pitot_temperature_c)
         elif kind == "GPS_RAW_INT":
             fix = units.from_gps_raw_int(m)
             if fix is None:

@@ -128,8 +128,9 @@ def read_ulog(path: Path, port_names: Sequence[str] = (), *, progress: Callable[
     if (dp := take("differential_pressure")) is not None:
         names = ("differential_pressure_pa", "differential_pressure_raw_pa", "differential_pressure_filtered_pa")
         field = next(k for k in names if k in dp)  # the raw Δp before the filtered one: no filter lag
-        for t, v in zip(_t_sample_s(dp), dp[field], strict=True):
-            b.pitot(float(t), float(v))
+        temps = dp.get("temperature", np.full(len(dp[field]), np.nan))  # [°C]; PX4 drivers without one: NaN
+        for t, v, c in zip(_t_sample_s(dp), dp[field], temps, strict=True):
+            b.pitot(float(t), float(v), float(c))
     if (mag := take("vehicle_magnetometer")) is not None:
         for t, m in zip(_t_sample_s(mag), _vec(mag, "magnetometer_ga") * GAUSS_TO_UT, strict=True):
             b.mag(float(t), m)

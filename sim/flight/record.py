@@ -78,6 +78,7 @@ def fly(
         if (a := tick.airspeed) is not None:
             rec["pitot_t_s"].append(a.t_s)
             rec["pitot_dp_pa"].append(a.dp_pa)
+            rec["pitot_temperature_c"].append(a.temperature_c)
         if (s := tick.servos) is not None:
             rec["servo_t_s"].append(s.t_s)
             rec["servo_pwm_us"].append(s.pwm_us)

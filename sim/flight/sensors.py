@@ -640,7 +640,9 @@ class PitotAirspeed:
         if self._lag is not None:
             x = float(self._lag.step(np.array([x]))[0])
         dp = x + self.offset_pa + g.noise_pa * float(self.rng.standard_normal())
-        return AirspeedSample(t_s=t_s, dp_pa=round(dp / g.resolution_pa) * g.resolution_pa, temperature_c=temperature_c)
+        warm = self.installation.temperature_offset_k if self.installation is not None else 0.0
+        return AirspeedSample(t_s=t_s, dp_pa=round(dp / g.resolution_pa) * g.resolution_pa,
+                              temperature_c=temperature_c + warm)  # fmt: skip
 
 
 # ------------------------------------------------------------------------------- pressure ports

@@ -64,6 +64,7 @@ WORLD_EFFECTS: Final = {
     "pitot-ratio": "airspeed ratio error left after the user's calibration",
     "pitot-position": "pitot-static position error varying with incidence and sideslip",
     "pitot-lag": "pneumatic tubing lag of the pitot lines",
+    "pitot-temperature": "the airspeed sensor's die reads above the outside air (its dissipation, the avionics bay)",
     "gnss-latency": "receiver latency differs from the autopilot's assumed delay, with jitter",
     "gnss-accuracy": "accuracy varying with the sky (multipath, geometry), reported hAcc following it",
     "baro-static-error": "static-source error of the barometer varying with dynamic pressure and incidence",
@@ -193,6 +194,13 @@ PITOT_POSITION_SOURCE: Final = (
     "per cent of q̄ and changes with incidence; the total-pressure tube reads within 1 % to about ±10–15° "
     "(Δp_t/q̄ = −k·θ², k 0.05–0.15 /rad²); the probe is mounted within ±2° of the body axis"
 )
+PITOT_TEMPERATURE_OFFSET_K: Final = (0.0, 8.0)
+PITOT_TEMPERATURE_SOURCE: Final = (
+    "TE MS4525DO data sheet: an 11-bit temperature output (−50…150 °C) from the die of a package mounted in the "
+    "fuselage beside the probe; it reads above the outside air by its own dissipation and the avionics bay's "
+    "warmth: 0–8 K drawn (assumption). ArduPilot's AP_Baro::get_external_temperature() prefers it to the "
+    "board's, which 'tends to read high, often 30 degrees above the actual temperature'"
+)
 PITOT_LAG_S: Final = (0.005, 0.05)
 PITOT_LAG_SOURCE: Final = (
     "pneumatic lag of the pitot lines (Sinclair & Robins, NACA TN 2793, 1952; Whitmore et al., NASA TM-4171, "
@@ -276,7 +284,8 @@ class MagInstallation:
 @dataclass(frozen=True)
 class PitotInstallation:
     """Ratio error on Δp, static-source error Δp_s/q̄ = c0 + cα·α, total-pressure incidence loss k·θ² with
-    θ the flow angle to the probe (mounted ``mount_rad`` (pitch, yaw) off the body axis), tubing lag [s]."""
+    θ the flow angle to the probe (mounted ``mount_rad`` (pitch, yaw) off the body axis), tubing lag [s], and
+    the sensor's temperature reading above the outside air [K]."""
 
     ratio_error: float
     static_cp: float
@@ -284,6 +293,7 @@ class PitotInstallation:
     incidence_k: float
     mount_rad: tuple[float, float]
     lag_s: float
+    temperature_offset_k: float = 0.0  # the airspeed sensor's temperature reading above the outside air
 
 
 @dataclass(frozen=True)
@@ -373,10 +383,11 @@ def draw_installation(effects: frozenset[str], rng: np.random.Generator, *, part
         static_cp=float(rng.uniform(*BARO_STATIC_CP)), static_cp_per_rad=float(rng.uniform(*BARO_STATIC_CP_PER_RAD))
     )
     latency = float(rng.uniform(*GNSS_LATENCY_S))
+    pitot_warm_k = float(rng.uniform(*PITOT_TEMPERATURE_OFFSET_K))  # drawn last: the earlier draws stay as they were
     # the Earth's field magnitude sets the motor field's size: 50 µT, the order of the field anywhere the
     # fleet flies (the interference is a fraction of it by definition)
     motor_field = motor_dir * motor_frac * 50e-6
-    on = "pitot-ratio" in e or "pitot-position" in e or "pitot-lag" in e
+    on = any(k in e for k in ("pitot-ratio", "pitot-position", "pitot-lag", "pitot-temperature"))
     return Installation(
         imu=ImuInstallation(
             part=part.name if "imu-grade" in e else None,
@@ -400,6 +411,7 @@ def draw_installation(effects: frozenset[str], rng: np.random.Generator, *, part
             incidence_k=pitot.incidence_k if "pitot-position" in e else 0.0,
             mount_rad=pitot.mount_rad if "pitot-position" in e else (0.0, 0.0),
             lag_s=pitot.lag_s if "pitot-lag" in e else 0.0,
+            temperature_offset_k=pitot_warm_k if "pitot-temperature" in e else 0.0,
         )
         if on
         else None,

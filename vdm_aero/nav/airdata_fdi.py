@@ -204,21 +204,39 @@ class WindChangeDetector:
     measurement in it) less the change of the air velocity the ports measure (rotated to NED alike) is the
     wind's change; an aircraft flying through a shear feels it in its airspeed, its ground velocity follows
     only through the airframe's dynamics. Both are smoothed alike (the same lag: in a turn the velocity turns
-    at several m/s²)."""
+    at several m/s²).
+
+    It also keeps what a free INS started at the window's start would say now (:meth:`ins_window`): until a
+    change is seen, the air data with the old wind have pulled the filter's velocity away from the truth by
+    the change itself, and the INS alone, over a few seconds, has not drifted."""
 
     window_s: float = WIND_CHANGE_WINDOW_S
     _cum: tuple[float, float] = (0.0, 0.0)
+    _cum_p: tuple[float, float] = (0.0, 0.0)  # ∫ of the INS's velocity change [m]
     _t: list[float] = field(default_factory=list)
     _v: list[tuple[float, float, float, float]] = field(default_factory=list)  # smoothed air N, E and INS N, E
+    # raw per sample: INS velocity change N, E, its integral N, E, and the filter's position N, E and velocity N, E
+    _pose: list[tuple[float, ...]] = field(default_factory=list)
     _last_t_s: float = -math.inf
+    _anchor: tuple[float, tuple[float, ...], tuple[float, ...]] | None = None  # (t [s], pose, smoothed) at the start
 
-    def ins_step(self, t_s: float, dv_n: float, dv_e: float) -> None:
-        """One IMU step's velocity change, north and east [m/s] (gravity and the bias estimate applied)."""
-        self._cum = (self._cum[0] + dv_n, self._cum[1] + dv_e)
+    def ins_step(self, t_s: float, dv_n: float, dv_e: float, dt_s: float = 0.0) -> None:
+        """One IMU step's velocity change, north and east [m/s] (gravity and the bias estimate applied), over
+        ``dt_s`` [s]."""
+        (vn, ve), (pn, pe) = self._cum, self._cum_p
+        self._cum = (vn + dv_n, ve + dv_e)
+        self._cum_p = (pn + (vn + 0.5 * dv_n) * dt_s, pe + (ve + 0.5 * dv_e) * dt_s)  # trapezoid
 
-    def air(self, t_s: float, v_air_n: float, v_air_e: float) -> float | None:
-        """The ports' air velocity, north and east [m/s], at ``t_s``; the horizontal wind change over the window
-        [m/s], once the window is full."""
+    def air(
+        self,
+        t_s: float,
+        v_air_n: float,
+        v_air_e: float,
+        p_ne_m: tuple[float, float] = (math.nan, math.nan),
+        v_ne_m_s: tuple[float, float] = (math.nan, math.nan),
+    ) -> float | None:
+        """The ports' air velocity, north and east [m/s], at ``t_s`` (with the filter's horizontal position [m]
+        and velocity [m/s] then); the horizontal wind change over the window [m/s], once the window is full."""
         dt = t_s - self._last_t_s
         now = (v_air_n, v_air_e, *self._cum)
         if self._v and dt < 5.0:
@@ -227,20 +245,72 @@ class WindChangeDetector:
         else:
             self._t.clear()
             self._v.clear()
+            self._pose.clear()
         self._last_t_s = t_s
         self._t.append(t_s)
         self._v.append(now)
+        self._pose.append((*self._cum, *self._cum_p, *p_ne_m, *v_ne_m_s))
         k = 0
         while k < len(self._t) and self._t[k] < t_s - self.window_s - 2.0:
             k += 1
         if k:
-            del self._t[:k], self._v[:k]
+            del self._t[:k], self._v[:k], self._pose[:k]
         if self._t[0] > t_s - self.window_s + 0.5:
             return None
         old = self._v[_index_at(self._t, t_s - self.window_s)]
         d_air = (now[0] - old[0], now[1] - old[1])
         d_ins = (now[2] - old[2], now[3] - old[3])
         return math.hypot(d_ins[0] - d_air[0], d_ins[1] - d_air[1])
+
+    def anchor(self) -> None:
+        """Hold the pose at the window's start (before the change just seen) as the free INS's start, until
+        :meth:`release`."""
+        if self._t:
+            k = _index_at(self._t, self._t[-1] - self.window_s)
+            self._anchor = (self._t[k], self._pose[k], self._v[k])
+
+    def release(self) -> None:
+        self._anchor = None
+
+    @property
+    def anchored_s(self) -> float | None:
+        """How long ago [s] the anchor's pose was (None without an anchor)."""
+        return None if self._anchor is None or not self._t else self._t[-1] - self._anchor[0]
+
+    def change_since_anchor(self) -> float | None:
+        """|Δw| from the anchor to now [m/s] (as :meth:`air` computes it): a step in the wind stays, a gust
+        goes back."""
+        if self._anchor is None or not self._v:
+            return None
+        old, now = self._anchor[2], self._v[-1]
+        return math.hypot(now[2] - old[2] - (now[0] - old[0]), now[3] - old[3] - (now[1] - old[1]))
+
+    def recent_change(self, span_s: float = 2.0) -> float | None:
+        """|Δw| over the last ``span_s`` [m/s] (as :meth:`air` computes it over the window): a change still
+        going on, or over."""
+        if not self._t or self._t[0] > self._t[-1] - span_s + 0.25:
+            return None
+        old, now = self._v[_index_at(self._t, self._t[-1] - span_s)], self._v[-1]
+        return math.hypot(now[2] - old[2] - (now[0] - old[0]), now[3] - old[3] - (now[1] - old[1]))
+
+    def ins_window(self, t_s: float) -> tuple[tuple[float, float], tuple[float, float], float] | None:
+        """A free INS from the filter's pose at the anchor (else at the window's start), now: (position N, E [m],
+        velocity N, E [m/s], its length [s]); None before half a window of samples, or when the last sample is
+        not from ``t_s`` (within 0.5 s: the detector is fed only while the ports' air data are fused)."""
+        if not self._t or t_s - self._t[-1] > 0.5:
+            return None
+        if self._anchor is not None:
+            t0, a, _ = self._anchor
+        else:
+            k = _index_at(self._t, self._t[-1] - self.window_s)
+            t0, a = self._t[k], self._pose[k]
+        tau = self._t[-1] - t0
+        b = self._pose[-1]
+        if tau < 0.5 * self.window_s or not all(math.isfinite(v) for v in a[4:]):
+            return None
+        v = (a[6] + b[0] - a[0], a[7] + b[1] - a[1])
+        p = (a[4] + (a[6] - a[0]) * tau + b[2] - a[2], a[5] + (a[7] - a[1]) * tau + b[3] - a[3])
+        return p, v, tau
 
 
 def _index_at(t: list[float], t_s: float) -> int:

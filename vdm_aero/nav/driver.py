@@ -4,7 +4,8 @@ the companion service share.
 :class:`NavDriver` takes time-ordered sensor events (IMU increments, GNSS fixes, barometer, magnetometer,
 pitot, servo outputs and port frames) and hands them to every filter, keeping what several measurements
 need (the latest body rates and specific force, servo deflections, the magnetometer sample for the
-initial heading, the air density). The port front end runs once per frame for all filters.
+initial heading, the air density from the best temperature the aircraft has). The port front end runs
+once per frame for all filters.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from vdm_aero._typing import F64Array
-from vdm_aero.atmosphere import density_kg_m3
+from vdm_aero.atmosphere import density_kg_m3, outside_air_temperature_c
 from vdm_aero.nav.contracts import ImuIncrement
 from vdm_aero.nav.filter import NavFilter
 from vdm_aero.nav.ports_frontend import PortFrame, PortFrontEnd
@@ -25,6 +26,7 @@ __all__ = ["PORT_SOLVE_HZ", "NavDriver"]
 
 PORT_SOLVE_HZ = 10.0  # FADS and the aero models run at the aiding rate; port health sees every frame
 CELSIUS_TO_KELVIN = 273.15
+AIRSPEED_TEMPERATURE_STALE_S = 10.0  # as ArduPilot's external temperature: older than this, the fallback
 
 
 class NavDriver:
@@ -40,6 +42,8 @@ class NavDriver:
         self._controls_rad = np.zeros(3)
         self._rho_kg_m3 = 1.225
         self._temp_k = 288.15
+        self._board_c = 15.0
+        self._airspeed_temp = (-math.inf, math.nan)  # (t [s], airspeed sensor temperature [°C])
         self._mag_b_ut: F64Array | None = None
         self._next_port_solve = -math.inf
 
@@ -51,12 +55,17 @@ class NavDriver:
         return out
 
     def imu(self, t_s: float, inc: ImuIncrement, temperature_c: float) -> None:
-        """An IMU increment ending at ``t_s`` [s] (IMU temperature [°C] for the air density)."""
+        """An IMU increment ending at ``t_s`` [s] (IMU die temperature [°C]: the air density's fallback when
+        no airspeed sensor reports its temperature, :func:`outside_air_temperature_c`)."""
         self.t_s = t_s
         self._omega_b, self._f_b = inc.dtheta_b / inc.dt_s, inc.dvel_b / inc.dt_s
-        self._temp_k = temperature_c + CELSIUS_TO_KELVIN
+        self._board_c = temperature_c
+        t_air, air_c = self._airspeed_temp
+        air_c = float(outside_air_temperature_c(air_c if t_s - t_air < AIRSPEED_TEMPERATURE_STALE_S else math.nan,
+                                                temperature_c))  # fmt: skip
+        self._temp_k = air_c + CELSIUS_TO_KELVIN
         for f in self.filters.values():
-            f.imu(t_s, inc, temperature_c)
+            f.imu(t_s, inc, air_c)
 
     def gnss(self, t_valid_s: float, t_s: float, p_ned_m: F64Array, v_ned_m_s: F64Array) -> None:
         """A GNSS fix valid at ``t_valid_s`` that arrived at ``t_s`` (local NED [m], [m/s]); the first one
@@ -82,9 +91,12 @@ class NavDriver:
         for f in self.filters.values():
             f.mag(t_s, self._mag_b_ut)
 
-    def pitot(self, t_s: float, dp_pa: float) -> None:
-        """Pitot differential pressure [Pa]."""
+    def pitot(self, t_s: float, dp_pa: float, temperature_c: float = math.nan) -> None:
+        """Pitot differential pressure [Pa], and the airspeed sensor's temperature [°C] (NaN: not reported),
+        the air density's temperature while it reports."""
         self.t_s = t_s
+        if math.isfinite(temperature_c):
+            self._airspeed_temp = (t_s, temperature_c)
         for f in self.filters.values():
             f.pitot(t_s, dp_pa)
 
@@ -95,16 +107,16 @@ class NavDriver:
         for f in self.filters.values():
             f.servo(t_s, self._controls_rad, throttle)
 
-    def ports(self, t_s: float, dp_pa: F64Array, qbar_pa: float | None = None) -> PortFrame | None:
-        """One port frame (Δp [Pa] in the models' port order, NaN for missing ports; ``qbar_pa``: a dynamic
-        pressure for Cp other than the FADS solve's, e.g. the pitot's): :meth:`solve_ports`, then
-        :meth:`fuse_ports`. Returns the solved frame (None for frames only checked, or without a front end)."""
-        frame = self.solve_ports(t_s, dp_pa, qbar_pa)
+    def ports(self, t_s: float, dp_pa: F64Array) -> PortFrame | None:
+        """One port frame (Δp [Pa] in the models' port order, NaN for missing ports): :meth:`solve_ports`,
+        then :meth:`fuse_ports`. Returns the solved frame (None for frames only checked, or without a front
+        end)."""
+        frame = self.solve_ports(t_s, dp_pa)
         if frame is not None:
             self.fuse_ports(frame)
         return frame
 
-    def solve_ports(self, t_s: float, dp_pa: F64Array, qbar_pa: float | None = None) -> PortFrame | None:
+    def solve_ports(self, t_s: float, dp_pa: F64Array) -> PortFrame | None:
         """Port health on every frame; the air data and force models at :data:`PORT_SOLVE_HZ` (the solved
         frame is returned, None otherwise). The aerodynamic outputs need only this, not the filter."""
         self.t_s = t_s
@@ -115,7 +127,7 @@ class NavDriver:
         if t_s < self._next_port_solve:
             return None
         self._next_port_solve = t_s + 1.0 / PORT_SOLVE_HZ - 1e-6
-        frame = fe.process(t_s, dp_pa, self._rho_kg_m3, self._omega_b, self._controls_rad, ok, qbar_pa)
+        frame = fe.process(t_s, dp_pa, self._rho_kg_m3, self._omega_b, self._controls_rad, ok)
         self.last_frame = frame
         return frame
 

@@ -43,6 +43,7 @@ from vdm_aero.nav.measurements import (
     ForceContext,
     GnssPosition,
     GnssVelocity,
+    InsWindowFix,
     MagField,
     PitotAirspeed,
     PortAirData,
@@ -54,7 +55,7 @@ from vdm_aero.nav.state import AERO_PARAMS, AERO_PRIOR, AERO_SLOT, IDX, N_ERR, N
 from vdm_aero.rotation import dcm_from_quat, quat_from_euler
 from vdm_aero.vehicle import VehicleDescription
 
-__all__ = ["GATE_CHI2", "IMU_DATASHEETS", "MODES", "ModeSpec", "NavConfig", "NavFilter"]
+__all__ = ["ABLATIONS", "GATE_CHI2", "IMU_DATASHEETS", "MODES", "ModeSpec", "NavConfig", "NavFilter", "mode_spec"]
 
 GATE_CHI2: Final = {1: 15.14, 2: 18.42, 3: 21.11, 6: 27.86}
 """χ² 99.99 % points by measurement dimension (scipy.stats.chi2.ppf(0.9999, k))."""
@@ -123,8 +124,38 @@ MODES: Final = {
         description="the product: pitot + port air data + force model, air-data FDI, wind relearnt",
     ),
 }
+# The product mode with one part taken away, for the benchmark's ablation table (not offered to serve or
+# replay: each answers "does this part earn its place in vdm?")
+ABLATIONS: Final = {
+    "vdm-no-force": ModeSpec(pitot=True, ports_airdata=True, fdi=True, wind_relearn=True,
+                             description="ablation: vdm without the force model"),
+    "vdm-no-net": ModeSpec(pitot=True, ports_airdata=True, force="deim", fdi=True, wind_relearn=True,
+                           description="ablation: vdm with the DEIM force model alone (no correction net)"),
+    "vdm-no-pitot": ModeSpec(ports_airdata=True, force="best", fdi=True, wind_relearn=True,
+                             description="ablation: vdm without the pitot"),
+}  # fmt: skip
+
+
+def mode_spec(mode: str) -> ModeSpec:
+    """A navigation mode's or an ablation's spec (ValueError naming the known ones)."""
+    spec = MODES.get(mode) or ABLATIONS.get(mode)
+    if spec is None:
+        raise ValueError(f"unknown navigation mode {mode!r}; known: {', '.join([*MODES, *ABLATIONS])}")
+    return spec
+
+
 WIND_PSCALE: Final = 0.5  # wind noise × (1 + WIND_PSCALE·|ḣ|): EKF2/EKF3's WIND_PSCALE (default 0.5 per m/s)
 WIND_RELEARN_SIGMA_M_S: Final = (3.0, 3.0, 0.5)  # the wind's σ reset on a wind event: a shear's size (N, E, D)
+# the free INS over the wind detector's window (~10 s): its velocity from the filter's own at the window's start
+# (σ ~0.3 m/s in an outage), drifting with the horizontal acceleration error of an in-flight-aligned INS (the
+# accelerometer bias left after GNSS, ~20 mg turn-on tolerance largely estimated, and a few mrad of tilt·g)
+INS_WINDOW_SIGMA_V_M_S: Final = 0.3
+INS_WINDOW_SIGMA_P_M: Final = 1.0
+INS_WINDOW_ACCEL_M_S2: Final = 0.05
+INS_WINDOW_MAX_S: Final = 25.0  # the free INS's longest run (σ_v 1.3 m/s, σ_p 16 m by the figures above)
+WIND_SETTLED_M_S: Final = 1.5  # |Δw| over 2 s under this: the change is over (turbulence: ~0.5–1 m/s)
+HEADING_DOUBT_S: Final = 30.0  # a magnetometer gated out this recently: no free-INS fix
+WIND_STEP_M_S: Final = 6.0  # |Δw| from before the change to its end: a step that stayed (the shear's 10.6 m/s)
 
 
 @dataclass(frozen=True)
@@ -250,10 +281,8 @@ class NavFilter:
     """The VDM navigation filter in one mode (module docstring)."""
 
     def __init__(self, mode: str, config: NavConfig, derivatives: StabilityDerivatives | None = None) -> None:
-        if mode not in MODES:
-            raise ValueError(f"unknown navigation mode {mode!r}; known: {', '.join(MODES)}")
+        self.spec = mode_spec(mode)
         self.mode = mode
-        self.spec = MODES[mode]
         if self.spec.force == "classic" and derivatives is None:
             raise ValueError("vdm-classic needs the stability derivatives of the design data set")
         self.config = config
@@ -268,6 +297,7 @@ class NavFilter:
         self._pos_rejected_since: float | None = None
         self._all_rejected_since: float | None = None
         self._next_aid: dict[str, float] = {}
+        self._last_rejected_s: dict[str, float] = {}
         self._consider = np.zeros(N_ERR, dtype=bool)
         for k in ("wind", "bm", "baro", "gnss", "aero"):
             self._consider[IDX[k]] = True
@@ -300,7 +330,7 @@ class NavFilter:
         out.engine = copy.deepcopy(self.engine, memo)
         out.inputs = copy.deepcopy(self.inputs, memo)
         out._buffer = copy.deepcopy(self._buffer, memo)
-        out._next_aid = dict(self._next_aid)
+        out._next_aid, out._last_rejected_s = dict(self._next_aid), dict(self._last_rejected_s)
         out.counts, out.rejected = dict(self.counts), dict(self.rejected)
         out.nis = {k: deque(v, maxlen=NIS_WINDOW) for k, v in self.nis.items()}
         out.adaptive = copy.deepcopy(self.adaptive, memo)
@@ -389,7 +419,8 @@ class NavFilter:
 
     # ------------------------------------------------------------------------------------ predict
     def imu(self, t_s: float, inc: ImuIncrement, temperature_c: float | None = None) -> None:
-        """One IMU increment ending at ``t_s``."""
+        """One IMU increment ending at ``t_s`` (``temperature_c``: the outside-air temperature [°C] for the
+        density, as :class:`~vdm_aero.nav.driver.NavDriver` picks it)."""
         gap = t_s - inc.dt_s - self.t_s
         if self.x is not None and gap > 2.0 * inc.dt_s:
             if gap > GAP_COAST_MAX_S and not self.in_outage:
@@ -408,7 +439,7 @@ class NavFilter:
         v0 = x.v_ned.copy() if self.wind_change is not None else None
         self.process.propagate_inplace(x, inc)
         if self.wind_change is not None and v0 is not None:
-            self.wind_change.ins_step(t_s, float(x.v_ned[0] - v0[0]), float(x.v_ned[1] - v0[1]))
+            self.wind_change.ins_step(t_s, float(x.v_ned[0] - v0[0]), float(x.v_ned[1] - v0[1]), inc.dt_s)
         self.engine.predict(phi, qd)
         self.t_s = t_s
         self._buffer.append((t_s, x.p_ned.copy(), x.v_ned.copy()))
@@ -542,15 +573,18 @@ class NavFilter:
         state: NavState | None = None,
         consider: BoolArray | None = None,
         adaptive: bool = False,
+        gate: float | None = None,
     ) -> UpdateResult:
         """Fuse one measurement (its innovation against ``state`` when given: the delayed-fusion path;
-        ``adaptive``: its noise from :class:`AdaptiveNoise`)."""
+        ``adaptive``: its noise from :class:`AdaptiveNoise`; ``gate``: the χ² gate, by default the
+        measurement dimension's)."""
         assert self.x is not None and self.engine is not None
         model = meas.model
         y = meas.z - model.evaluate(state if state is not None else self.x)
         h = model.jacobian(self.x)
         dim = len(y)
-        gate = GATE_CHI2.get(dim, float(dim + 6.0 * math.sqrt(2.0 * dim)))
+        if gate is None:
+            gate = GATE_CHI2.get(dim, float(dim + 6.0 * math.sqrt(2.0 * dim)))
         if consider is None and self.in_outage:
             consider = self._wind_live if meas.t_s < self._wind_live_until_s else self._consider
         r = model.covariance()
@@ -570,6 +604,7 @@ class NavFilter:
                 self._last_airdata_s = meas.t_s
         else:
             self.rejected[name] = self.rejected.get(name, 0) + 1
+            self._last_rejected_s[name] = meas.t_s
         return res
 
     def _nis(self, meas: Measurement, *, adaptive: bool = False) -> float:
@@ -652,7 +687,8 @@ class NavFilter:
         return past
 
     def baro(self, t_s: float, pressure_pa: float) -> None:
-        """Static pressure [Pa]: the altitude measurement and the air density (with the IMU temperature)."""
+        """Static pressure [Pa]: the altitude measurement and the air density (with the outside-air
+        temperature of :meth:`imu`)."""
         self.inputs.rho_kg_m3 = float(density_kg_m3(pressure_pa, self.inputs.temperature_k))
         if self.x is None or not self._due("baro", t_s):
             return
@@ -763,7 +799,11 @@ class NavFilter:
         beta = float(frame.airdata[2]) - float(a[AERO_SLOT["beta_bias_rad"]])
         v_b = speed * np.array([math.cos(alpha) * math.cos(beta), math.sin(beta), math.sin(alpha) * math.cos(beta)])
         v_n = dcm_from_quat(self.x.q_nb) @ v_b
-        change = self.wind_change.air(frame.t_s, float(v_n[0]), float(v_n[1]))
+        x = self.x
+        change = self.wind_change.air(frame.t_s, float(v_n[0]), float(v_n[1]), (float(x.p_ned[0]), float(x.p_ned[1])),
+                                      (float(x.v_ned[0]), float(x.v_ned[1])))  # fmt: skip
+        if self.wind_change.anchored_s is not None:
+            self._settle_wind_change(frame.t_s)
         if change is None or not self.in_outage or change <= WIND_CHANGE_M_S or frame.t_s < self._wind_live_until_s:
             return
         if self.fdi is not None and self.fdi.wind_changed(frame.t_s, change) is None:
@@ -773,7 +813,10 @@ class NavFilter:
 
     def _relearn_wind(self, t_s: float) -> None:
         """The air data agree the wind has changed: forget the wind (σ back to a shear's size, uncorrelated) and
-        let it be estimated for the FDI's relearning time, also in an outage."""
+        let it be estimated for the FDI's relearning time, also in an outage. Until the change was seen, the air
+        data with the old wind pulled the velocity (and so the position) off by the change: in an outage, once
+        the change is over and has stayed, the horizontal pose a free INS gives from the filter's pose before
+        it puts them back, and the gust state hands the new wind over (:meth:`_settle_wind_change`)."""
         assert self.engine is not None
         p = self.engine.P
         i = IDX["wind"]
@@ -782,3 +825,62 @@ class NavFilter:
         p[i, i] = np.diag(np.square(WIND_RELEARN_SIGMA_M_S))
         self.engine.P = p
         self._wind_live_until_s = t_s + WIND_RELEARN_S
+        if self.wind_change is not None and self.in_outage:
+            self.wind_change.anchor()
+
+    def _hand_gust_to_wind(self) -> None:
+        """The gust state (zero-mean Gauss–Markov, live while the wind is held) has soaked up the new wind
+        before the change was seen, and would hand it back only at its own decay: move its horizontal content
+        into the wind, forget the wind (σ back to a shear's size) and restart the gust from its steady state,
+        all uncorrelated."""
+        assert self.engine is not None and self.x is not None
+        x = self.x
+        x.wind_ned[:2] += x.gust_ned[:2]
+        x.gust_ned[:2] = 0.0
+        p = self.engine.P
+        w, g = IDX["wind"], IDX["gust"]
+        for i, var in ((w, np.square(WIND_RELEARN_SIGMA_M_S)), (g, np.square(self.process.gust_sigma_m_s))):
+            p[i, :] = 0.0
+            p[:, i] = 0.0
+            p[i, i] = np.diag(var)
+        self.engine.P = p
+
+    def _settle_wind_change(self, t_s: float) -> None:
+        """After a wind event in an outage: once the change is over (|Δw| over the last 2 s under
+        :data:`WIND_SETTLED_M_S`) and has stayed (:data:`WIND_STEP_M_S` from before it), fuse the free INS's pose
+        from before the change, once (:class:`InsWindowFix`; once: a second fix from the same start would count
+        its errors twice), and hand the gust's content to the wind. A wind change is a step: it ends, and it
+        stays; a gust goes back. A difference between the INS and the air data that is still growing after
+        :data:`INS_WINDOW_MAX_S` is the INS drifting (vibration, clipping, scale errors in a climb), and the
+        free INS is then the last thing to trust: no fix."""
+        wc = self.wind_change
+        assert wc is not None
+        tau = wc.anchored_s
+        if tau is None:
+            return
+        if tau >= INS_WINDOW_MAX_S:
+            wc.release()
+            self.counts["ins_window_abandoned"] = self.counts.get("ins_window_abandoned", 0) + 1
+            return
+        recent = wc.recent_change()
+        if recent is None or recent > WIND_SETTLED_M_S:
+            return
+        step = wc.change_since_anchor()
+        fix = wc.ins_window(t_s) if self.in_outage else None
+        wc.release()
+        # the free INS turns its increments to NED with the filter's heading: with the compass gated out lately
+        # the heading is what is wrong, and the "change" is the INS and the air data turned apart by it
+        heading_doubt = t_s - self._last_rejected_s.get("mag", -math.inf) < HEADING_DOUBT_S
+        if fix is None or step is None or step < WIND_STEP_M_S or heading_doubt:
+            # the change went back (a gust, turbulence with the INS's own error on top): no step to undo
+            self.counts["ins_window_abandoned"] = self.counts.get("ins_window_abandoned", 0) + 1
+            return
+        (pn, pe), (vn, ve), tau = fix
+        a = INS_WINDOW_ACCEL_M_S2
+        sig_v = math.hypot(INS_WINDOW_SIGMA_V_M_S, a * tau)
+        sig_p = math.hypot(INS_WINDOW_SIGMA_P_M, 0.5 * a * tau * tau)
+        # no gate: the point is to move the state by what the gate would call an outlier
+        res = self._fuse(Measurement(t_s, np.array([pn, pe, vn, ve]), InsWindowFix(sig_p, sig_v)), gate=math.inf)
+        self.counts["ins_window_fix"] = self.counts.get("ins_window_fix", 0) + int(res.accepted)
+        self._hand_gust_to_wind()  # what the gust took of the change while it went on
+        self._wind_live_until_s = max(self._wind_live_until_s, t_s + WIND_RELEARN_S)

@@ -29,6 +29,7 @@ __all__ = [
     "ForceContext",
     "GnssPosition",
     "GnssVelocity",
+    "InsWindowFix",
     "MagField",
     "PitotAirspeed",
     "PortAirData",
@@ -119,6 +120,29 @@ class GnssPosition:
 
     def covariance(self) -> F64Array:
         return _diag((self.sigma_ne_m, self.sigma_ne_m, self.sigma_d_m))
+
+
+@dataclass(frozen=True)
+class InsWindowFix:
+    """Horizontal position N, E [m] and velocity N, E [m/s] of a free INS over the last few seconds, started
+    from the filter's own pose (:meth:`~vdm_aero.nav.airdata_fdi.WindChangeDetector.ins_window`): what undoes
+    a wind change that the air data fed into the velocity before it was seen."""
+
+    sigma_p_m: float
+    sigma_v_m_s: float
+    name: str = "ins_window"
+
+    def evaluate(self, x: NavState) -> F64Array:
+        return np.array([x.p_ned[0], x.p_ned[1], x.v_ned[0], x.v_ned[1]])
+
+    def jacobian(self, x: NavState) -> F64Array:
+        h = np.zeros((4, N_ERR))
+        h[0:2, IDX["p"]] = np.eye(3)[:2]
+        h[2:4, IDX["v"]] = np.eye(3)[:2]
+        return h
+
+    def covariance(self) -> F64Array:
+        return _diag((self.sigma_p_m, self.sigma_p_m, self.sigma_v_m_s, self.sigma_v_m_s))
 
 
 @dataclass(frozen=True)

@@ -103,6 +103,27 @@ class PortFrontEnd:
         c["stuck"] += int((in_range & stuck).sum())
         return np.asarray(in_range & ~stuck)
 
+    def air_data(
+        self, dp_pa: F64Array, rho_kg_m3: float, omega_b: F64Array, controls_rad: F64Array
+    ) -> tuple[F64Array, F64Array, float] | None:
+        """The FADS solve of one frame (NaN marks an unusable port), warm-started from the last frame's:
+        ((V [m/s], α, β [rad]), its covariance (3, 3), q̄ [Pa]), or None with no air data (too few ports, no
+        convergence, or q̄ below :data:`MIN_QBAR_PA`). Calibration normalises Cp with this same q̄."""
+        sol = self.pressure_model.solve(dp_pa, rho_kg_m3, omega_b, controls_rad, noise_pa=self.noise_pa,
+                                        start=self._start)  # fmt: skip
+        if sol is None and self._start is not None:  # a bad warm start (after a gap): try cold
+            sol = self.pressure_model.solve(dp_pa, rho_kg_m3, omega_b, controls_rad, noise_pa=self.noise_pa)
+        if sol is None:
+            self._start = None
+            return None
+        vab, cov, _ = sol
+        qbar = 0.5 * rho_kg_m3 * float(vab[0]) ** 2
+        if qbar < MIN_QBAR_PA:
+            self._start = None
+            return None
+        self._start = (qbar, float(vab[1]), float(vab[2]))
+        return vab, cov, qbar
+
     def process(
         self,
         t_s: float,
@@ -111,30 +132,18 @@ class PortFrontEnd:
         omega_b: F64Array,
         controls_rad: F64Array,
         ok: BoolArray | None = None,
-        qbar_pa: float | None = None,
     ) -> PortFrame:
-        """Solve one frame (``ok``: the mask :meth:`health` gave for it; checked here when None). ``qbar_pa``:
-        the dynamic pressure that turns Δp into Cp for the aero models (e.g. from the pitot); by default the
-        FADS solve's."""
+        """Solve one frame (``ok``: the mask :meth:`health` gave for it; checked here when None). Cp = Δp / q̄
+        with the FADS solve's q̄, the normalisation the models were calibrated with (:func:`form_targets`):
+        the pitot's q̄ would tie the force model to the very sensor whose failures it must outlive."""
         if ok is None:
             ok = self.health(dp_pa)
         dp = np.where(ok, np.asarray(dp_pa, dtype=np.float64), np.nan)
-        sol = self.pressure_model.solve(dp, rho_kg_m3, omega_b, controls_rad, noise_pa=self.noise_pa, start=self._start)
-        if sol is None and self._start is not None:  # a bad warm start (after a gap): try cold
-            sol = self.pressure_model.solve(dp, rho_kg_m3, omega_b, controls_rad, noise_pa=self.noise_pa)
-        if sol is None:
-            self._start = None
+        solved = self.air_data(dp, rho_kg_m3, omega_b, controls_rad)
+        if solved is None:
             self.counts["no_airdata"] += 1
             return PortFrame(t_s, ok, None, None, math.nan)
-        vab, cov, _ = sol
-        qbar = 0.5 * rho_kg_m3 * float(vab[0]) ** 2
-        if qbar < MIN_QBAR_PA:
-            self._start = None
-            self.counts["no_airdata"] += 1
-            return PortFrame(t_s, ok, None, None, qbar)
-        self._start = (qbar, float(vab[1]), float(vab[2]))
-        if qbar_pa is not None and math.isfinite(qbar_pa) and qbar_pa >= MIN_QBAR_PA:
-            qbar = qbar_pa
+        vab, cov, qbar = solved
         cp = dp / qbar
         coeffs = {name: m.predict(cp) for name, m in self.models.items()}
         return PortFrame(t_s, ok, vab, cov * (len(ok) / max(int(ok.sum()), 1)), qbar, coeffs)

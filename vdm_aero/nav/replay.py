@@ -19,7 +19,7 @@ import numpy as np
 from vdm_aero._typing import F64Array
 from vdm_aero.flightlog import SensorLog
 from vdm_aero.geodesy import LocalFrame
-from vdm_aero.nav.filter import MODES, NavConfig, NavFilter
+from vdm_aero.nav.filter import MODES, NavConfig, NavFilter, mode_spec
 from vdm_aero.nav.models import NavModels
 from vdm_aero.nav.ports_frontend import PortFrontEnd
 from vdm_aero.nav.stream import LogRunner, NavStream, SolutionRecorder
@@ -82,7 +82,7 @@ def available_modes(requested: Sequence[str], log: SensorLog, models: NavModels 
     run, skipped = [], {}
     has_ports = len(log["ports_t_s"]) > 0 and np.isfinite(log["ports_dp_pa"]).any()
     for m in requested:
-        spec = MODES[m]
+        spec = mode_spec(m)
         if m in _PORT_MODES and not has_ports:
             skipped[m] = "the log has no port values"
         elif (m in _PORT_MODES or spec.force == "classic") and models is None:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -53,6 +53,7 @@ class NavStream:
     mag_b_ut: F64Array
     pitot_t_s: F64Array
     pitot_dp_pa: F64Array
+    pitot_temperature_c: F64Array
     servo_t_s: F64Array
     controls_rad: F64Array
     throttle: F64Array
@@ -111,6 +112,7 @@ class NavStream:
             mag_b_ut=log["mag_field_b_t"] * T_TESLA_TO_UT,
             pitot_t_s=log["pitot_t_s"],
             pitot_dp_pa=log["pitot_dp_pa"],
+            pitot_temperature_c=log["pitot_temperature_c"],
             servo_t_s=log["servo_t_s"],
             controls_rad=np.column_stack([ail, ele, rud]) if len(ail) else np.zeros((0, 3)),
             throttle=np.asarray(thr),
@@ -202,7 +204,7 @@ class LogRunner:
                 if not any(a <= t < b for a, b in self.mag_blocked):
                     d.mag(t, s.mag_b_ut[i])
             elif kind == _PITOT:
-                d.pitot(t, float(s.pitot_dp_pa[i]))
+                d.pitot(t, float(s.pitot_dp_pa[i]), float(s.pitot_temperature_c[i]))
             elif kind == _SERVO:
                 d.servo(t, s.controls_rad[i], float(s.throttle[i]))
             elif kind == _PORTS:
@@ -227,10 +229,3 @@ class SolutionRecorder:
                 x = f.x
                 store[m].append((t_s, x.p_ned.copy(), x.v_ned.copy(), x.q_nb.copy(), x.air_motion_ned.copy(),
                                  f.P[0:9, 0:9].copy(), f.in_outage, x.wind_ned.copy()))  # fmt: skip
-
-
-def modes_needing(modes: Sequence[str]) -> set[str]:
-    """The port aero models (by name) that a set of modes needs."""
-    from vdm_aero.nav.filter import MODES
-
-    return {MODES[m].force for m in modes if MODES[m].force not in (None, "classic")}  # type: ignore[misc]
