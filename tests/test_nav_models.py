@@ -173,3 +173,23 @@ def test_fads_polynomial_scalar_path_is_the_vector_one() -> None:
         general = _angle_terms(np.array([a]), np.array([b]))
         for f, g in zip(fast, general, strict=True):
             np.testing.assert_allclose(f, g[0], rtol=1e-15, atol=1e-15)
+
+
+def test_a_fix_carries_the_uncertainty_of_the_receivers_lag_along_the_track() -> None:
+    """Fixes stamped with an assumed lag that is off by U(±60 ms) (the spread NavConfig states) land v·δt
+    along the track: their scatter there is what the covariance says, and across the track unchanged."""
+    from vdm_aero.nav.filter import NavConfig
+
+    sigma_lag = NavConfig.__dataclass_fields__["gnss_latency_sigma_s"].default
+    rng = np.random.default_rng(5)
+    v_ned = np.array([18.0, -9.0, 1.0])
+    white = (0.7, 1.0)
+    dt = rng.uniform(-0.06, 0.06, 200_000)
+    err = dt[:, None] * v_ned + rng.standard_normal((dt.size, 3)) * np.array([white[0], white[0], white[1]])
+    r = GnssPosition(*white, timing_ned_m=sigma_lag * v_ned).covariance()
+    along = v_ned / np.linalg.norm(v_ned)
+    across = np.cross(along, [0.0, 0.0, 1.0])
+    across /= np.linalg.norm(across)
+    for u in (along, across):
+        np.testing.assert_allclose(float(np.var(err @ u)), float(u @ r @ u), rtol=0.02)
+    assert float(along @ r @ along) > 1.5 * float(across @ r @ across)  # the lag term is not negligible here

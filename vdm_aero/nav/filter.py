@@ -25,7 +25,7 @@ import copy
 import math
 from collections import deque
 from collections.abc import Collection
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Final
 
 import numpy as np
@@ -37,6 +37,7 @@ from vdm_aero.nav.contracts import ImuIncrement, Measurement
 from vdm_aero.nav.design_fit import StabilityDerivatives
 from vdm_aero.nav.engine import EkfEngine, UpdateResult
 from vdm_aero.nav.ins import InsProcess, ProcessNoise
+from vdm_aero.nav.mag_deviation import MagDeviation
 from vdm_aero.nav.measurements import (
     BaroAltitude,
     ClassicForce,
@@ -87,6 +88,8 @@ class ModeSpec:
     # the wind's noise grows with the height rate, and in an outage a wind change the air data agree on is
     # relearnt (the FDI's wind event) instead of held
     wind_relearn: bool = False
+    # the magnetometer's soft-iron and motor deviation learnt while GNSS aids (vdm_aero.nav.mag_deviation)
+    mag_deviation: bool = False
     description: str = ""
 
     def force_model(self, available: Collection[str]) -> str | None:
@@ -121,18 +124,21 @@ MODES: Final = {
         force="best",
         fdi=True,
         wind_relearn=True,
-        description="the product: pitot + port air data + force model, air-data FDI, wind relearnt",
+        mag_deviation=True,
+        description="the product: pitot + port air data + force model, air-data FDI, wind relearnt, "
+        "compass deviation learnt in flight",
     ),
 }
 # The product mode with one part taken away, for the benchmark's ablation table (not offered to serve or
 # replay: each answers "does this part earn its place in vdm?")
+_VDM: Final = MODES["vdm"]
 ABLATIONS: Final = {
-    "vdm-no-force": ModeSpec(pitot=True, ports_airdata=True, fdi=True, wind_relearn=True,
-                             description="ablation: vdm without the force model"),
-    "vdm-no-net": ModeSpec(pitot=True, ports_airdata=True, force="deim", fdi=True, wind_relearn=True,
-                           description="ablation: vdm with the DEIM force model alone (no correction net)"),
-    "vdm-no-pitot": ModeSpec(ports_airdata=True, force="best", fdi=True, wind_relearn=True,
-                             description="ablation: vdm without the pitot"),
+    "vdm-no-force": replace(_VDM, force=None, description="ablation: vdm without the force model"),
+    "vdm-no-net": replace(_VDM, force="deim",
+                          description="ablation: vdm with the DEIM force model alone (no correction net)"),
+    "vdm-no-pitot": replace(_VDM, pitot=False, description="ablation: vdm without the pitot"),
+    "vdm-no-deviation": replace(_VDM, mag_deviation=False,
+                                description="ablation: vdm without the compass deviation learnt in flight"),
 }  # fmt: skip
 
 
@@ -155,6 +161,7 @@ INS_WINDOW_ACCEL_M_S2: Final = 0.05
 INS_WINDOW_MAX_S: Final = 25.0  # the free INS's longest run (σ_v 1.3 m/s, σ_p 16 m by the figures above)
 WIND_SETTLED_M_S: Final = 1.5  # |Δw| over 2 s under this: the change is over (turbulence: ~0.5–1 m/s)
 HEADING_DOUBT_S: Final = 30.0  # a magnetometer gated out this recently: no free-INS fix
+MAG_LEARN_AFTER_S: Final = 60.0  # the compass swing starts once the aided heading has converged
 WIND_STEP_M_S: Final = 6.0  # |Δw| from before the change to its end: a step that stayed (the shear's 10.6 m/s)
 
 
@@ -170,6 +177,10 @@ class NavConfig:
     filter_rate_hz: float = 50.0
     aiding_rate_hz: float = 10.0
     gnss_latency_s: float = 0.1
+    # how well that lag is known: the autopilots assume 110-120 ms for u-blox M8/M9 ("based on flight logs",
+    # ArduPilot AP_GPS_UBLOX::get_lag; PX4 EKF2_GPS_DELAY), older parts 220 ms, and the serial link and the
+    # receiver's load move it by tens of ms: ±60 ms uniform about the assumed lag, 1σ = 0.06/√3 s
+    gnss_latency_sigma_s: float = 0.035
     gnss_pos_sigma_ne_m: float = 0.7
     gnss_pos_sigma_d_m: float = 1.0
     gnss_vel_sigma_m_s: float = 0.2
@@ -306,6 +317,7 @@ class NavFilter:
         self._wind_live_until_s = -math.inf
         self.fdi = AirDataFdi() if self.spec.fdi else None
         self.wind_change = WindChangeDetector() if self.spec.wind_relearn else None
+        self.mag_deviation = MagDeviation(config.mag_field_ned_ut) if self.spec.mag_deviation else None
         if self.spec.wind_relearn:
             self.process.wind_height_rate_scale = WIND_PSCALE
         self._ports_speed: tuple[float, float, float] | None = None  # (t [s], V [m/s], σ_V [m/s]) of the ports
@@ -338,6 +350,7 @@ class NavFilter:
         out.process = copy.deepcopy(self.process, memo)  # its gust intensity is the branch's own
         out.fdi = copy.deepcopy(self.fdi, memo)  # the air-data FDI's levels, exclusions and history
         out.wind_change = copy.deepcopy(self.wind_change, memo)
+        out.mag_deviation = copy.deepcopy(self.mag_deviation, memo)
         out._carried = copy.deepcopy(self._carried, memo)
         return out
 
@@ -374,7 +387,10 @@ class NavFilter:
             "updates": dict(self.counts),
             "rejected": dict(self.rejected),
             "airdata_excluded": self.fdi.excluded() if self.fdi is not None else [],
-        }
+            # the compass swing: samples learnt, and whether its correction is applied yet
+            "compass_deviation": None if self.mag_deviation is None else {
+                "samples": self.mag_deviation.n, "applied": self.mag_deviation.ready},
+        }  # fmt: skip
 
     # -------------------------------------------------------------------------------- initialise
     def initialise(
@@ -631,11 +647,14 @@ class NavFilter:
         past = self._buffered(t_valid_s)
         v = np.asarray(v_ned, float)
         horizontal = not math.isfinite(float(v[2]))  # no vertical speed (MAVLink's GPS_RAW_INT)
-        vel = self._fuse(
-            Measurement(t_valid_s, v[:2] if horizontal else v, GnssVelocity(c.gnss_vel_sigma_m_s, horizontal)), past
-        )
+        # a fix whose time of validity is off by the lag's error: off by v·δt in position, a·δt in velocity
+        at = past if past is not None else self.x
+        a_ned = dcm_from_quat(self.x.q_nb) @ self.inputs.f_b + np.array([0.0, 0.0, G0_M_S2])
+        vel_model = GnssVelocity(c.gnss_vel_sigma_m_s, horizontal, c.gnss_latency_sigma_s * a_ned)
+        vel = self._fuse(Measurement(t_valid_s, v[:2] if horizontal else v, vel_model), past)
+        pos_model = GnssPosition(c.gnss_pos_sigma_ne_m, c.gnss_pos_sigma_d_m, c.gnss_latency_sigma_s * at.v_ned)
         pos = self._fuse(
-            Measurement(t_valid_s, np.asarray(p_ned, float), GnssPosition(c.gnss_pos_sigma_ne_m, c.gnss_pos_sigma_d_m)),
+            Measurement(t_valid_s, np.asarray(p_ned, float), pos_model),
             past,
             consider=np.zeros(N_ERR, dtype=bool),
         )
@@ -698,13 +717,17 @@ class NavFilter:
         self._fuse(Measurement(t_s, z, BaroAltitude(self.config.origin_alt_m, self.config.baro_sigma_m)))
 
     def mag(self, t_s: float, field_b_ut: F64Array) -> None:
+        """The body-frame magnetic field [µT], less the deviation learnt in flight when the mode learns it."""
         if self.x is None or not self._due("mag", t_s):
             return
-        self._fuse(
-            Measurement(
-                t_s, np.asarray(field_b_ut, float), MagField(self.config.mag_field_ned_ut, self.config.mag_sigma_ut)
-            )
-        )
+        m_b = np.asarray(field_b_ut, float)
+        dev = self.mag_deviation
+        if dev is not None:
+            h_b = dcm_from_quat(self.x.q_nb).T @ self.config.mag_field_ned_ut
+            if not self.in_outage and t_s - self._t_init_s > MAG_LEARN_AFTER_S:
+                dev.observe(m_b, h_b, self.inputs.throttle)
+            m_b = m_b - dev.correction_ut(h_b, self.inputs.throttle)
+        self._fuse(Measurement(t_s, m_b, MagField(self.config.mag_field_ned_ut, self.config.mag_sigma_ut)))
 
     def servo(self, t_s: float, controls_rad: F64Array, throttle: float) -> None:
         self.inputs.controls_rad = np.asarray(controls_rad, float)

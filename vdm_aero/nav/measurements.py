@@ -103,10 +103,12 @@ def _diag(sigmas: tuple[float, ...] | F64Array) -> F64Array:
 @dataclass(frozen=True)
 class GnssPosition:
     """GNSS position in the local NED frame [m] = p + the receiver's correlated error (antenna at the IMU);
-    the σ here is its white part."""
+    the σ here is its white part. ``timing_ned_m``: the position error of a fix whose time of validity is
+    off by 1σ of the receiver's latency (σ_lag·v [m]), a rank-one term along the track."""
 
     sigma_ne_m: float
     sigma_d_m: float
+    timing_ned_m: F64Array | None = None
     name: str = "gnss_pos"
 
     def evaluate(self, x: NavState) -> F64Array:
@@ -119,7 +121,8 @@ class GnssPosition:
         return h
 
     def covariance(self) -> F64Array:
-        return _diag((self.sigma_ne_m, self.sigma_ne_m, self.sigma_d_m))
+        r = _diag((self.sigma_ne_m, self.sigma_ne_m, self.sigma_d_m))
+        return r if self.timing_ned_m is None else r + np.outer(self.timing_ned_m, self.timing_ned_m)
 
 
 @dataclass(frozen=True)
@@ -147,10 +150,12 @@ class InsWindowFix:
 
 @dataclass(frozen=True)
 class GnssVelocity:
-    """GNSS velocity NED [m/s]; ``horizontal_only``: N and E (MAVLink's GPS_RAW_INT has no vertical speed)."""
+    """GNSS velocity NED [m/s]; ``horizontal_only``: N and E (MAVLink's GPS_RAW_INT has no vertical speed).
+    ``timing_ned_m_s``: as :class:`GnssPosition`'s, σ_lag·a [m/s] along the acceleration."""
 
     sigma_m_s: float
     horizontal_only: bool = False
+    timing_ned_m_s: F64Array | None = None
     name: str = "gnss_vel"
 
     @property
@@ -166,7 +171,11 @@ class GnssVelocity:
         return h
 
     def covariance(self) -> F64Array:
-        return _diag((self.sigma_m_s,) * self._n)
+        r = _diag((self.sigma_m_s,) * self._n)
+        if self.timing_ned_m_s is None:
+            return r
+        t = self.timing_ned_m_s[: self._n]
+        return r + np.outer(t, t)
 
 
 # ------------------------------------------------------------------------------------ baro and mag
