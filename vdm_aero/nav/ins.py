@@ -144,7 +144,8 @@ class InsProcess:
         """Q_d = G·Q_c·Gᵀ·Δt (the velocity noise rotated to NED; its covariance is isotropic); the wind's
         grows with the height rate when :attr:`wind_height_rate_scale` is set (a climb or descent crosses
         the wind gradient: EKF2/3 scale the wind's process noise the same way)."""
+        if self.wind_height_rate_scale <= 0.0:
+            return np.diag(self._qc * u.dt_s)
         q = self._qc.copy()
-        if self.wind_height_rate_scale > 0.0:
-            q[IDX["wind"]] *= (1.0 + self.wind_height_rate_scale * abs(float(x.v_ned[2]))) ** 2
+        q[IDX["wind"]] *= (1.0 + self.wind_height_rate_scale * abs(float(x.v_ned[2]))) ** 2
         return np.diag(q * u.dt_s)

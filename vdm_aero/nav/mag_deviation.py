@@ -45,7 +45,7 @@ SOLVE_EVERY_N: Final = 50
 @dataclass
 class MagDeviation:
     """Online regression of the magnetometer residual (module docstring). ``observe`` while aided,
-    ``correct`` always: a fit/predict estimator in the manner of pysensors."""
+    :meth:`correction_ut` always: a fit/predict estimator in the manner of pysensors."""
 
     field_ned_ut: F64Array
     info: F64Array = field(init=False)
