@@ -5,10 +5,6 @@
   with ``millis()`` at the call, so the ports of one script update can straddle a millisecond). A frame is
   complete when every port has arrived; a partial one is closed after ``timeout_s`` with NaN for the missing
   ports (they then go to the gappy model) and counted.
-* :class:`ImuIntegrator`: IMU samples → filter-rate increments (Δθ, Δv), as the log replay builds them. A
-  sample with a non-finite or impossible rate or acceleration (beyond :data:`GYRO_MAX_RAD_S`,
-  :data:`ACCEL_MAX_M_S2`) is refused and counted (``rejected``): its neighbours integrate across it, so one
-  bad sample costs one sample, not the filter (a NaN increment would make the state non-finite: a reset).
 * :class:`AutopilotClock`: the autopilot's boot time → a continuous filter time across autopilot reboots,
   and TIMESYNC: the offset between the autopilot's clock and ours.
 """
@@ -21,16 +17,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmware_bridge.units import ImuSample
 from vdm_aero._typing import F64Array
-from vdm_aero.nav.contracts import ImuIncrement
-from vdm_aero.nav.stream import IMU_GAP_S  # a longer gap is a link loss: restart the increment, do not integrate it
 
-__all__ = ["AutopilotClock", "ImuIntegrator", "PortAssembler", "PortFrameIn"]
+__all__ = ["AutopilotClock", "PortAssembler", "PortFrameIn"]
 
 REBOOT_BACKSTEP_S = 1.0  # the autopilot's boot time stepping back this far is a reboot
-GYRO_MAX_RAD_S = 100.0  # 5730 °/s: nearly 3× the widest MEMS gyro range (2000 °/s)
-ACCEL_MAX_M_S2 = 2000.0  # ≈ 200 g: far beyond a navigation accelerometer's range (16–32 g)
 
 
 @dataclass(frozen=True)
@@ -96,61 +87,6 @@ class PortAssembler:
         if self._ms is not None and now - self._opened_at > self.timeout_s:
             return self._close(False)
         return None
-
-
-class ImuIntegrator:
-    """Sums IMU samples over one filter step; each sample holds until the next (rectangle rule)."""
-
-    def __init__(self, filter_rate_hz: float) -> None:
-        self.step_s = 1.0 / filter_rate_hz
-        self._prev: ImuSample | None = None
-        self._sum = [0.0] * 6  # Δθ (3), Δv (3): plain floats, summed 400 times a second
-        self._dt = 0.0
-        self.gaps = 0
-        self.rejected = 0
-
-    def reset(self) -> None:
-        self._prev = None
-        self._sum = [0.0] * 6
-        self._dt = 0.0
-
-    def add(self, s: ImuSample) -> tuple[float, ImuIncrement] | None:
-        """A sample; returns (end time [s], increment) when a filter step is complete."""
-        w, f = s.gyro_b_rad_s, s.accel_b_m_s2
-        if not (
-            abs(w[0]) <= GYRO_MAX_RAD_S
-            and abs(w[1]) <= GYRO_MAX_RAD_S
-            and abs(w[2]) <= GYRO_MAX_RAD_S
-            and abs(f[0]) <= ACCEL_MAX_M_S2
-            and abs(f[1]) <= ACCEL_MAX_M_S2
-            and abs(f[2]) <= ACCEL_MAX_M_S2
-        ):
-            self.rejected += 1  # NaN fails every comparison: refused too
-            return None
-        prev, self._prev = self._prev, s
-        if prev is None:
-            return None
-        dt = s.t_s - prev.t_s
-        if not 0.0 < dt <= IMU_GAP_S:
-            self.gaps += 1
-            self.reset()
-            self._prev = s
-            return None
-        acc = self._sum
-        w, f = prev.gyro_b_rad_s, prev.accel_b_m_s2
-        acc[0] += w[0] * dt
-        acc[1] += w[1] * dt
-        acc[2] += w[2] * dt
-        acc[3] += f[0] * dt
-        acc[4] += f[1] * dt
-        acc[5] += f[2] * dt
-        self._dt += dt
-        if self._dt < self.step_s - 0.5 * dt:
-            return None
-        inc = ImuIncrement(np.array(acc[:3]), np.array(acc[3:]), self._dt)
-        self._sum = [0.0] * 6
-        self._dt = 0.0
-        return s.t_s, inc
 
 
 class AutopilotClock:

@@ -29,15 +29,18 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from firmware_bridge import outputs, units
 from firmware_bridge.config import ServiceConfig
+from firmware_bridge.decode import AUTOPILOT_LOST_S, IMU_SOURCES, MESSAGES, MavlinkDecoder
 from firmware_bridge.endpoint import MavEndpoint, MavlinkMessage, load_signing_key
-from firmware_bridge.inputs import AutopilotClock, ImuIntegrator, PortAssembler, PortFrameIn
+from firmware_bridge.inputs import PortFrameIn
 from firmware_bridge.persist import FilterStateStore, NavLog
 from firmware_bridge.sd_notify import SdNotify
 from firmware_bridge.transport import open_transport
+from vdm_aero._typing import F64Array
 from vdm_aero.errors import UserInputError
 from vdm_aero.geodesy import LocalFrame
 from vdm_aero.nav.driver import NavDriver
 from vdm_aero.nav.filter import NavConfig, NavFilter
+from vdm_aero.nav.imu_increments import ImuIntegrator
 from vdm_aero.nav.models import NavModels
 from vdm_aero.nav.ports_frontend import PortFrame, PortFrontEnd
 from vdm_aero.nav.state import IDX
@@ -49,8 +52,6 @@ HEARTBEAT_S = 1.0
 TIMESYNC_S = 2.0
 STREAM_CHECK_S = 3.0
 STREAM_MIN_FRACTION = 0.5  # a stream arriving at under half its requested rate is requested again
-AUTOPILOT_LOST_S = 3.0  # no autopilot HEARTBEAT this long: the link is down
-UNIX_PLAUSIBLE_S = (1_420_070_400.0, 4_102_444_800.0)  # 2015-01-01 … 2100-01-01: what a GNSS-set clock can say
 SOLUTION_STALE_S = 0.5  # a filter this far behind the autopilot's clock has no solution to give
 LINK_GAP_S = 0.5  # the IMU (50-400 Hz) silent this long in the autopilot's time: a link gap, reported
 POLL_MAX_S = 0.02
@@ -85,7 +86,6 @@ class ServiceStats:
     solutions_sent: int = 0
     named_values_sent: int = 0
     filter_resets: int = 0
-    duplicates: int = 0  # samples received again (a link or router repeating frames): dropped
     link_gaps: list[dict[str, float]] = field(default_factory=list)  # {"wall_s", "autopilot_s"} per gap
     storage_errors: dict[str, int] = field(default_factory=dict)  # "state"/"nav_log" → failed writes
     last_storage_error: str = ""
@@ -136,19 +136,21 @@ class CompanionService:
         self.navlog = (NavLog(cfg.nav_log_file, max_bytes=cfg.nav_log_max_bytes, backups=cfg.nav_log_backups)
                        if cfg.nav_log_file is not None else None)  # fmt: skip
         self.stats = ServiceStats()
-        self.clock = AutopilotClock()
+        # the one MAVLink decoder, shared with the tlog reader: its converters, its choice of streams, its clock
+        self.decoder = MavlinkDecoder(self, system_id=cfg.system_id, port_names=self.port_names,
+                                      ports_source=cfg.ports.source, ports_array_id=cfg.ports.debug_array_id,
+                                      port_frame_timeout_s=cfg.ports.frame_timeout_s,
+                                      gnss_latency_s=cfg.gnss_latency_s,
+                                      imu_sources=[k for k in IMU_SOURCES if k in cfg.streams] or None)  # fmt: skip
+        self.clock = self.decoder.clock
+        assert self.decoder.assembler is not None
+        self.assembler = self.decoder.assembler
         self.imu_int = ImuIntegrator(cfg.filter_rate_hz)
-        self.assembler = PortAssembler(self.port_names, timeout_s=cfg.ports.frame_timeout_s)
         self.frame: LocalFrame | None = None
         self.driver: NavDriver | None = None
         self.filter: NavFilter | None = None
-        self.autopilot: tuple[int, int] | None = None
         self._last_ap_heartbeat = -math.inf
         self._unix_minus_boot_s: float | None = None
-        self._last_mag: tuple[float, float, float] | None = None
-        self._last_baro_ms = -1
-        self._last_gps_us = -1
-        self._last_imu_stamp = -1  # HIGHRES_IMU time_usec or SCALED_IMU time_boot_ms: one of the two streams
         self._last_imu_in = math.nan  # local time the latest IMU sample arrived
         self._boot_now_s = -math.inf  # the autopilot's time of the latest IMU sample
         self._stream_seen: dict[str, int] = dict.fromkeys(cfg.streams, 0)
@@ -157,16 +159,8 @@ class CompanionService:
         self._error_logged: dict[str, float] = {}
         self._force_streams = False
         self._inflation = outputs.inflation(cfg.outputs.solution_hz)
+        # what is not sensor data (the sensor data go through the decoder)
         self._handlers: dict[str, Callable[[MavlinkMessage, float], None]] = {
-            "HEARTBEAT": self._on_heartbeat,
-            "HIGHRES_IMU": self._on_highres_imu,
-            "SCALED_IMU": self._on_scaled_imu,
-            "SCALED_PRESSURE": self._on_scaled_pressure,
-            "GPS_RAW_INT": self._on_gps_raw_int,
-            "SERVO_OUTPUT_RAW": self._on_servo_output_raw,
-            "NAMED_VALUE_FLOAT": self._on_named_value_float,
-            "DEBUG_FLOAT_ARRAY": self._on_debug_float_array,
-            "SYSTEM_TIME": self._on_system_time,
             "TIMESYNC": self._on_timesync,
             "COMMAND_ACK": self._on_command_ack,
         }
@@ -203,7 +197,7 @@ class CompanionService:
         self.stats.received[kind] = self.stats.received.get(kind, 0) + 1
         if kind in self._stream_seen and self._from_autopilot(msg):
             self._stream_seen[kind] += 1  # the requested streams' rates, checked every STREAM_CHECK_S
-        handler = self._handlers.get(kind)
+        handler = self.decoder.feed if kind in MESSAGES else self._handlers.get(kind)
         if handler is None:
             return
         try:
@@ -222,8 +216,13 @@ class CompanionService:
                         f"({where.filename.rsplit('/', 1)[-1]}:{where.lineno}); "
                         f"{self.stats.handler_errors[kind]} so far")  # fmt: skip
 
+    @property
+    def autopilot(self) -> tuple[int, int] | None:
+        """(system, component) of the autopilot, once its HEARTBEAT is heard."""
+        return self.decoder.autopilot
+
     def _from_autopilot(self, msg: MavlinkMessage) -> bool:
-        return self.autopilot is not None and msg.get_srcSystem() == self.autopilot[0]
+        return self.decoder.from_autopilot(msg)
 
     def _link_gap(self, boot_s: float, t_in: float) -> None:
         """The IMU resumes after ≥ LINK_GAP_S of the autopilot's time: a link drop-out (the autopilot's clock
@@ -257,97 +256,97 @@ class CompanionService:
         self._next_ap[key] = t + period_s - 1e-6
         return True
 
-    # ----------------------------------------------------------------------------------- handlers
-    def _on_heartbeat(self, msg: MavlinkMessage, t_in: float) -> None:
-        if msg.type in (mavlink2.MAV_TYPE_GCS, mavlink2.MAV_TYPE_ONBOARD_CONTROLLER) or msg.autopilot == (
-            mavlink2.MAV_AUTOPILOT_INVALID
-        ):
-            return
-        if msg.get_srcSystem() != self.cfg.system_id:
-            return
-        src = (msg.get_srcSystem(), msg.get_srcComponent())
-        if self.autopilot != src or t_in - self._last_ap_heartbeat > AUTOPILOT_LOST_S:
+    # --------------------------------------------------------------- the decoder's sink (DecodedSink)
+    def on_autopilot(self, src: tuple[int, int], new: bool, t_in: float) -> None:
+        if new:
             self._print(f"vdm-aero serve: autopilot {src[0]}/{src[1]} heard; requesting streams")
-            self.autopilot = src
             self._next.pop("streams", None)  # request the streams now (a new or rebooted autopilot)
         self._last_ap_heartbeat = t_in
 
-    def _imu(self, s: units.ImuSample, t_in: float) -> None:
+    def on_reboot(self, boot_s: float) -> None:
+        self._print(f"vdm-aero serve: autopilot reboot (boot time {boot_s:.1f} s); re-requesting streams")
+        if self.driver is not None:
+            for f in self.driver.filters.values():
+                f.imu_recalibrated()
+        self.imu_int.reset()
+        self._next.pop("streams", None)
+        self._boot_now_s = -math.inf  # a reboot is not a link gap
+
+    def on_imu_source(self, kind: str) -> None:
+        self._print(f"vdm-aero serve: IMU from {kind}")
+        self.imu_int.reset()  # increments never mix two IMUs
+
+    def on_imu(self, t_s: float, s: units.ImuSample, t_in: float) -> None:
         if math.isfinite(self._boot_now_s) and s.t_s - self._boot_now_s >= LINK_GAP_S:
             self._link_gap(s.t_s, t_in)
         self._last_imu_in = t_in
-        if self.clock.observe_boot_s(s.t_s):
-            self._print(f"vdm-aero serve: autopilot reboot (boot time {s.t_s:.1f} s); re-requesting streams")
-            if self.driver is not None:
-                for f in self.driver.filters.values():
-                    f.imu_recalibrated()
-            self.imu_int.reset()
-            self._next.pop("streams", None)
-            self._last_baro_ms = self._last_gps_us = self._last_imu_stamp = -1
         self._boot_now_s = s.t_s
-        if s.mag_b_ut is not None and s.mag_b_ut != self._last_mag and self.driver is not None:
-            self._last_mag = s.mag_b_ut  # HIGHRES_IMU repeats a slower magnetometer's sample: pass new ones
-            self.driver.mag(self.clock.filter_s(s.t_s), np.array(s.mag_b_ut))
-        step = self.imu_int.add(s)
+        step = self.imu_int.add(s.t_s, s.gyro_b_rad_s, s.accel_b_m_s2)
         if step is not None and self.driver is not None:
             t_end, inc = step
             self.driver.imu(self.clock.filter_s(t_end), inc, s.temperature_c)
             self._check_finite()
 
-    def _on_highres_imu(self, msg: MavlinkMessage, t_in: float) -> None:
-        if not self._from_autopilot(msg):
-            return
-        if msg.time_usec == self._last_imu_stamp:
-            self.stats.duplicates += 1  # integrating a sample twice would corrupt the increments
-            return
-        self._last_imu_stamp = msg.time_usec
-        self._imu(units.from_highres_imu(msg), t_in)
+    def on_mag(self, t_s: float, field_b_ut: tuple[float, float, float]) -> None:
+        if self.driver is not None:
+            self.driver.mag(t_s, np.array(field_b_ut))
 
-    def _on_scaled_imu(self, msg: MavlinkMessage, t_in: float) -> None:
-        if not self._from_autopilot(msg) or "HIGHRES_IMU" in self.cfg.streams:
-            return
-        if msg.time_boot_ms == self._last_imu_stamp:
-            self.stats.duplicates += 1
-            return
-        self._last_imu_stamp = msg.time_boot_ms
-        self._imu(units.from_scaled_imu(msg), t_in)
+    def on_baro(self, t_s: float, static_pa: float) -> None:
+        if self.driver is not None:
+            self.driver.baro(t_s, static_pa)
 
-    def _on_scaled_pressure(self, msg: MavlinkMessage, t_in: float) -> None:
-        if not self._from_autopilot(msg):
-            return
-        if msg.time_boot_ms == self._last_baro_ms:
-            return  # the same sample again (the stream runs faster than the sensor)
-        self._last_baro_ms = msg.time_boot_ms
-        s = units.from_scaled_pressure(msg)
-        if self.driver is None:
-            return
-        t = self.clock.filter_s(s.t_s)
-        self.driver.baro(t, s.static_pa)
-        if math.isfinite(s.pitot_dp_pa):
-            self.driver.pitot(t, s.pitot_dp_pa, s.pitot_temperature_c)
+    def on_pitot(self, t_s: float, dp_pa: float, temperature_c: float) -> None:
+        if self.driver is not None:
+            self.driver.pitot(t_s, dp_pa, temperature_c)
 
-    def _on_gps_raw_int(self, msg: MavlinkMessage, t_in: float) -> None:
-        if not self._from_autopilot(msg):
+    def on_gnss(self, t_valid_s: float, t_arrived_s: float, fix: units.GnssFix) -> None:
+        # the time of validity is the decoder's: GPS_RAW_INT is stamped when the autopilot received the fix,
+        # less the configured receiver latency (what ArduPilot's GPS_DELAY_MS and PX4's EKF2_GPS_DELAY subtract)
+        if not math.isfinite(self._boot_now_s):
             return
-        fix = units.from_gps_raw_int(msg)
-        if fix is None or msg.time_usec == self._last_gps_us or not math.isfinite(self._boot_now_s):
-            return
-        self._last_gps_us = msg.time_usec
         if self.frame is None:  # the first 3-D fix sets the local origin; the next ones initialise the filter
             self._start_filter(fix)
             return
         assert self.driver is not None
         p = self.frame.to_ned(fix.lat_deg, fix.lon_deg, fix.alt_m)
-        # GPS_RAW_INT is stamped when the autopilot received the fix: the receiver's latency before that is the
-        # configured one (what ArduPilot's GPS_DELAY_MS and PX4's EKF2_GPS_DELAY subtract)
-        t_arrived = self.clock.filter_s(fix.t_s)
-        t_valid = t_arrived - self.cfg.gnss_latency_s
-        t_now = max(self.clock.filter_s(self._boot_now_s), t_arrived)
+        t_now = max(self.clock.filter_s(self._boot_now_s), t_arrived_s)
         was = self.filter is not None and self.filter.initialised
-        self.driver.gnss(t_valid, t_now, np.asarray(p, dtype=np.float64).reshape(3), fix.v_ned_m_s)
+        self.driver.gnss(t_valid_s, t_now, np.asarray(p, dtype=np.float64).reshape(3), fix.v_ned_m_s)
         if not was and self.filter is not None and self.filter.initialised:
             self._t_initialised_s = t_now
         self._restore_state(t_now)
+
+    def on_servo(self, t_s: float, pwm_us: F64Array) -> None:
+        if self.driver is None or not math.isfinite(self._boot_now_s):
+            return
+        servos = self.models.vehicle.servos
+        ail, ele, rud, thr = servos.deflections_rad(servos.surfaces_pwm_us(pwm_us[None, :]))
+        self.driver.servo(t_s, np.array([ail[0], ele[0], rud[0]]), float(thr[0]))
+
+    def on_ports(self, t_s: float, frame: PortFrameIn) -> None:
+        if self.driver is None:
+            return
+        solved = self.driver.solve_ports(t_s, frame.dp_pa[self._port_order])
+        if solved is None:
+            return
+        # the aerodynamic outputs first (they need the solved frame, not the filter), then the filter update
+        self._outputs(solved)
+        self.stats.latency_s.append(time.monotonic() - frame.arrived_at)
+        self.driver.fuse_ports(solved)
+
+    def on_system_time(self, unix_minus_boot_s: float) -> None:
+        self._unix_minus_boot_s = unix_minus_boot_s
+        if math.isfinite(self._boot_now_s):  # the clock has started
+            self._restore_state(self.clock.filter_s(self._boot_now_s))
+
+    def on_truth(self, kind: str, msg: MavlinkMessage, t_in: float) -> None:
+        pass  # SITL's truth is for replay reports, not for navigating
+
+    def on_ap_attitude(self, t_s: float, q_nb: F64Array) -> None:
+        pass  # the IMU comes at its full rate on the link: the filter keeps its own attitude
+
+    def on_ap_position(self, t_s: float, lat_deg: float, lon_deg: float, alt_m: float) -> None:
+        pass  # the autopilot's estimate is what the service is compared with, not an input
 
     def _restore_state(self, t_s: float) -> None:
         """The saved slow states into the initialised filter, once the autopilot's boot instant is known
@@ -400,54 +399,6 @@ class CompanionService:
             self._print("vdm-aero serve: the filter diverged (non-finite state); re-initialising at the next fix")
             f.x = None
             f.engine = None
-
-    def _on_servo_output_raw(self, msg: MavlinkMessage, t_in: float) -> None:
-        if not self._from_autopilot(msg) or self.driver is None or not math.isfinite(self._boot_now_s):
-            return
-        s = units.from_servo_output_raw(msg)
-        servos = self.models.vehicle.servos
-        ail, ele, rud, thr = servos.deflections_rad(servos.surfaces_pwm_us(s.pwm_us[None, :]))
-        controls = np.array([ail[0], ele[0], rud[0]])
-        # SERVO_OUTPUT_RAW's uint32 µs clock wraps after 71 min: the outputs apply now
-        self.driver.servo(self.clock.filter_s(self._boot_now_s), controls, float(thr[0]))
-
-    def _on_named_value_float(self, msg: MavlinkMessage, t_in: float) -> None:
-        if self.cfg.ports.source != "named_value_float" or not self._from_autopilot(msg):
-            return
-        name = msg.name if isinstance(msg.name, str) else msg.name.decode("ascii", "replace")
-        for fr in self.assembler.add(int(msg.time_boot_ms), name.rstrip("\0"), float(msg.value), t_in):
-            self._port_frame(fr)
-
-    def _on_debug_float_array(self, msg: MavlinkMessage, t_in: float) -> None:
-        if self.cfg.ports.source != "debug_float_array" or not self._from_autopilot(msg):
-            return
-        if msg.array_id != self.cfg.ports.debug_array_id:
-            return
-        n = len(self.port_names)
-        data = np.asarray(msg.data[:n], dtype=np.float64)
-        self._port_frame(PortFrameIn(msg.time_usec * 1e-6, data, True, t_in))
-
-    def _port_frame(self, fr: PortFrameIn) -> None:
-        if self.driver is None:
-            return
-        dp = fr.dp_pa[self._port_order]
-        solved = self.driver.solve_ports(self.clock.filter_s(fr.t_s), dp)
-        if solved is None:
-            return
-        # the aerodynamic outputs first (they need the solved frame, not the filter), then the filter update
-        self._outputs(solved)
-        self.stats.latency_s.append(time.monotonic() - fr.arrived_at)
-        self.driver.fuse_ports(solved)
-
-    def _on_system_time(self, msg: MavlinkMessage, t_in: float) -> None:
-        if not self._from_autopilot(msg) or msg.time_unix_usec <= 0:
-            return  # 0: the autopilot has no UTC yet
-        unix_s = msg.time_unix_usec * 1e-6
-        if not UNIX_PLAUSIBLE_S[0] <= unix_s <= UNIX_PLAUSIBLE_S[1]:
-            raise ValueError(f"time_unix_usec {msg.time_unix_usec}: not a UTC time between 2015 and 2100")
-        self._unix_minus_boot_s = unix_s - msg.time_boot_ms * 1e-3
-        if math.isfinite(self._boot_now_s):  # the clock has started
-            self._restore_state(self.clock.filter_s(self._boot_now_s))
 
     def _on_timesync(self, msg: MavlinkMessage, t_in: float) -> None:
         if msg.tc1 != 0 and self._from_autopilot(msg):
@@ -552,8 +503,7 @@ class CompanionService:
             self._count_error("periodic", e)
 
     def _upkeep(self, now: float) -> None:
-        if (fr := self.assembler.expire(now)) is not None:
-            self._port_frame(fr)
+        self.decoder.expire_ports(now)
         self._report_fdi()
         if self._due("heartbeat", now, HEARTBEAT_S):
             hb = self.ep.mav.heartbeat_encode(mavlink2.MAV_TYPE_ONBOARD_CONTROLLER, mavlink2.MAV_AUTOPILOT_INVALID,
@@ -664,7 +614,7 @@ class CompanionService:
             "solutions_sent": self.stats.solutions_sent,
             "named_values_sent": self.stats.named_values_sent,
             "filter_resets": self.stats.filter_resets,
-            "duplicates": self.stats.duplicates,
+            "duplicates": sum(self.decoder.duplicates.get(k, 0) for k in IMU_SOURCES),
             "lost_frames": getattr(self.ep, "lost_frames", 0),
             "link_gaps": list(self.stats.link_gaps),
             "storage_errors": dict(self.stats.storage_errors),

@@ -10,7 +10,7 @@ reading is dropped from its IMU sample, a non-finite or impossible IMU temperatu
 pitot reading is no pitot. A static pressure no atmosphere has (≤ 0, NaN, above any sea-level record) raises
 ``ValueError``: the service counts and logs the message and skips it, before a density of 0 or below reaches
 the air-data equations. (Non-finite or impossible rates and accelerations are refused by
-:class:`firmware_bridge.inputs.ImuIntegrator`, where the time of the sample still counts.)
+:class:`vdm_aero.nav.imu_increments.ImuIntegrator`, where the time of the sample still counts.)
 """
 
 from __future__ import annotations
@@ -24,14 +24,23 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from firmware_bridge.endpoint import MavlinkMessage
 from vdm_aero._typing import F64Array
+from vdm_aero.atmosphere import isa
+from vdm_aero.rotation import quat_from_euler
 
 __all__ = [
+    "ApAttitude",
+    "ApPosition",
     "BaroPitotSample",
     "GnssFix",
     "ImuSample",
     "ServoPwm",
+    "from_altitude",
+    "from_attitude",
+    "from_global_position_int",
     "from_gps_raw_int",
     "from_highres_imu",
+    "from_highres_pressure",
+    "from_raw_imu",
     "from_scaled_imu",
     "from_scaled_pressure",
     "from_servo_output_raw",
@@ -43,6 +52,8 @@ HPA_TO_PA = 100.0
 GAUSS_TO_UT = 100.0  # 1 G = 1e-4 T = 100 µT
 MGAUSS_TO_UT = 0.1
 HIGHRES_MAG_BITS = 0x1C0  # HIGHRES_IMU fields_updated: x/y/z mag
+HIGHRES_ABS_PRESSURE_BIT = 0x200  # ... abs_pressure (the barometer)
+HIGHRES_DIFF_PRESSURE_BIT = 0x400  # ... diff_pressure (PX4 puts its airspeed sensor's reading here)
 UINT16_UNKNOWN = 65535
 MAX_LAT_DEG_E7, MAX_LON_DEG_E7 = 900_000_000, 1_800_000_000
 UNKNOWN_TEMPERATURE_C = 15.0  # an IMU temperature not reported (or impossible): ISA sea level
@@ -124,26 +135,49 @@ def from_highres_imu(m: MavlinkMessage) -> ImuSample:
     )
 
 
-def from_scaled_imu(m: MavlinkMessage) -> ImuSample:
-    """SCALED_IMU: milli-g, mrad/s, milligauss, cdegC (0 = unknown)."""
+def _mag_mgauss(m: MavlinkMessage) -> Vec3 | None:
+    """The integer magnetometer fields [mgauss] → µT; None when the autopilot has no compass there (it then
+    sends exactly 0, 0, 0: no field on Earth reads that)."""
+    if m.xmag == 0 and m.ymag == 0 and m.zmag == 0:
+        return None
+    return (m.xmag * MGAUSS_TO_UT, m.ymag * MGAUSS_TO_UT, m.zmag * MGAUSS_TO_UT)
+
+
+def _scaled_imu(m: MavlinkMessage, t_s: float) -> ImuSample:
+    """The fields SCALED_IMU, SCALED_IMU2/3 and ArduPilot's RAW_IMU share: milli-g, mrad/s, milligauss,
+    cdegC (0 = unknown)."""
+    temperature = getattr(m, "temperature", 0)
     return ImuSample(
-        t_s=m.time_boot_ms * 1e-3,
+        t_s=t_s,
         gyro_b_rad_s=(m.xgyro * 1e-3, m.ygyro * 1e-3, m.zgyro * 1e-3),
         accel_b_m_s2=(m.xacc * MG_TO_M_S2, m.yacc * MG_TO_M_S2, m.zacc * MG_TO_M_S2),
-        temperature_c=m.temperature * 0.01 if m.temperature else 15.0,
-        mag_b_ut=(m.xmag * MGAUSS_TO_UT, m.ymag * MGAUSS_TO_UT, m.zmag * MGAUSS_TO_UT),
+        temperature_c=_imu_temperature_c(temperature * 0.01) if temperature else UNKNOWN_TEMPERATURE_C,
+        mag_b_ut=_mag_mgauss(m),
     )
 
 
+def from_scaled_imu(m: MavlinkMessage) -> ImuSample:
+    """SCALED_IMU, SCALED_IMU2, SCALED_IMU3 (the first, second, third IMU): stamped in ms since boot."""
+    return _scaled_imu(m, m.time_boot_ms * 1e-3)
+
+
+def from_raw_imu(m: MavlinkMessage) -> ImuSample:
+    """ArduPilot's RAW_IMU: despite the name and the MAVLink spec (raw sensor counts), ArduPilot sends its
+    first IMU already scaled, in SCALED_IMU's units (GCS_MAVLINK::send_raw_imu: mG, mrad/s, mgauss), stamped in
+    µs since boot. Only ArduPilot's may be read so: :class:`firmware_bridge.decode.MavlinkDecoder` checks."""
+    return _scaled_imu(m, m.time_usec * 1e-6)
+
+
 def from_scaled_pressure(m: MavlinkMessage) -> BaroPitotSample:
-    """SCALED_PRESSURE: hPa and cdegC. A differential pressure of exactly 0 hPa (or not finite) means no
+    """SCALED_PRESSURE, SCALED_PRESSURE2, SCALED_PRESSURE3 (ArduPilot: barometer n with airspeed sensor n's
+    differential pressure): hPa and cdegC. A differential pressure of exactly 0 hPa (or not finite) means no
     sensor; ``temperature_press_diff`` (a MAVLink 2 extension) of 0 means not reported (the spec asks a real
     0 °C to be sent as 1 cdegC). ValueError for a static pressure outside :data:`STATIC_PA_RANGE` (module
     docstring)."""
     static_pa = m.press_abs * HPA_TO_PA
     lo, hi = STATIC_PA_RANGE
     if not lo <= static_pa <= hi:
-        raise ValueError(f"SCALED_PRESSURE press_abs {m.press_abs:g} hPa is not a static pressure "
+        raise ValueError(f"{m.get_type()} press_abs {m.press_abs:g} hPa is not a static pressure "
                          f"({lo / HPA_TO_PA:g}..{hi / HPA_TO_PA:g} hPa)")  # fmt: skip
     dp_pa = m.press_diff * HPA_TO_PA
     return BaroPitotSample(
@@ -153,6 +187,38 @@ def from_scaled_pressure(m: MavlinkMessage) -> BaroPitotSample:
         temperature_c=m.temperature * 0.01,
         pitot_temperature_c=diff_temp * 0.01 if (diff_temp := getattr(m, "temperature_press_diff", 0)) else math.nan,
     )
+
+
+def from_highres_pressure(m: MavlinkMessage) -> BaroPitotSample | None:
+    """The barometer and differential pressure PX4 sends in HIGHRES_IMU (hPa), when ``fields_updated`` says
+    they are new; None when neither is. ValueError for an impossible static pressure, as SCALED_PRESSURE."""
+    new_abs = bool(m.fields_updated & HIGHRES_ABS_PRESSURE_BIT)
+    new_diff = bool(m.fields_updated & HIGHRES_DIFF_PRESSURE_BIT)
+    if not (new_abs or new_diff):
+        return None
+    static_pa = m.abs_pressure * HPA_TO_PA if new_abs else math.nan
+    lo, hi = STATIC_PA_RANGE
+    if new_abs and not lo <= static_pa <= hi:
+        raise ValueError(f"HIGHRES_IMU abs_pressure {m.abs_pressure:g} hPa is not a static pressure "
+                         f"({lo / HPA_TO_PA:g}..{hi / HPA_TO_PA:g} hPa)")  # fmt: skip
+    dp_pa = m.diff_pressure * HPA_TO_PA if new_diff else math.nan
+    return BaroPitotSample(
+        t_s=m.time_usec * 1e-6,
+        static_pa=static_pa,
+        pitot_dp_pa=dp_pa if math.isfinite(dp_pa) else math.nan,
+        temperature_c=_imu_temperature_c(float(m.temperature)),
+    )
+
+
+def from_altitude(m: MavlinkMessage) -> BaroPitotSample | None:
+    """PX4's ALTITUDE: ``altitude_monotonic`` is its barometric altitude (air_data.baro_alt_meter, from the
+    static pressure by the ISA at SENS_BARO_QNH, default 1013.25 hPa); the static pressure back through the same
+    ISA [Pa]. None when not finite. Only a fall-back: a non-default QNH shifts it (a constant, which the
+    filter's barometer bias takes)."""
+    if not math.isfinite(m.altitude_monotonic):
+        return None
+    return BaroPitotSample(t_s=m.time_usec * 1e-6, static_pa=isa(float(m.altitude_monotonic))[0],
+                           pitot_dp_pa=math.nan, temperature_c=math.nan)  # fmt: skip
 
 
 def from_gps_raw_int(m: MavlinkMessage) -> GnssFix | None:
@@ -173,6 +239,40 @@ def from_gps_raw_int(m: MavlinkMessage) -> GnssFix | None:
         h_acc_m=h_acc * 1e-3 if h_acc else math.nan,
         satellites=int(m.satellites_visible),
     )
+
+
+@dataclass(frozen=True)
+class ApAttitude:
+    """The autopilot's own attitude estimate."""
+
+    t_s: float
+    q_nb: F64Array  # body FRD → NED, w x y z
+
+
+@dataclass(frozen=True)
+class ApPosition:
+    """The autopilot's own position estimate."""
+
+    t_s: float
+    lat_deg: float
+    lon_deg: float
+    alt_m: float  # above mean sea level
+
+
+def from_attitude(m: MavlinkMessage) -> ApAttitude | None:
+    """ATTITUDE: roll, pitch, yaw [rad] (ZYX Euler angles of body FRD in NED); None when not finite."""
+    if not all(math.isfinite(v) for v in (m.roll, m.pitch, m.yaw)):
+        return None
+    return ApAttitude(
+        t_s=m.time_boot_ms * 1e-3, q_nb=np.asarray(quat_from_euler(m.roll, m.pitch, m.yaw), dtype=np.float64)
+    )
+
+
+def from_global_position_int(m: MavlinkMessage) -> ApPosition | None:
+    """GLOBAL_POSITION_INT: degE7, mm (AMSL); None for a position off the globe, or none yet (0, 0)."""
+    if (m.lat == 0 and m.lon == 0) or abs(m.lat) > MAX_LAT_DEG_E7 or abs(m.lon) > MAX_LON_DEG_E7:
+        return None
+    return ApPosition(t_s=m.time_boot_ms * 1e-3, lat_deg=m.lat * 1e-7, lon_deg=m.lon * 1e-7, alt_m=m.alt * 1e-3)
 
 
 def from_servo_output_raw(m: MavlinkMessage) -> ServoPwm:

@@ -112,11 +112,19 @@ def test_service_and_replay_drive_the_same_filter_code() -> None:
 
 
 def test_replay_reads_logs_as_the_service_reads_the_link() -> None:
-    # the replay runs the benchmark's runner; the tlog reader converts with the service's units and assembler
+    # the replay runs the benchmark's runner; the service and the tlog reader decode MAVLink with one decoder,
+    # and only the decoder calls the converters of firmware_bridge.units (one table, message type → SI)
     full = {**_full_imports("firmware_bridge"), **_full_imports("vdm_aero/nav")}
     assert "vdm_aero.nav.stream" in full["vdm_aero/nav/replay.py"]
-    assert {"firmware_bridge.units", "firmware_bridge.inputs"} <= full["firmware_bridge/logs/tlog.py"]
+    assert "firmware_bridge.decode" in full["firmware_bridge/service.py"]
+    assert "firmware_bridge.decode" in full["firmware_bridge/logs/tlog.py"]
     assert "vdm_aero.nav.replay" in _full_imports("vdm_aero_cli")["vdm_aero_cli/cmd_replay.py"]
+    converters = sorted(
+        str(p.relative_to(ROOT))
+        for p in (ROOT / "firmware_bridge").rglob("*.py")
+        if p.name != "units.py" and ("units.from_" in p.read_text() or "import from_" in p.read_text())
+    )
+    assert converters == ["firmware_bridge/decode.py"], converters
 
 
 def test_log_formats_and_the_magnetic_model_behind_one_door_each() -> None:

@@ -601,7 +601,7 @@ def test_handlers_survive_extreme_values_of_every_handled_message(
     import time
 
     from firmware_bridge import units
-    from firmware_bridge.service import UNIX_PLAUSIBLE_S
+    from firmware_bridge.decode import UNIX_PLAUSIBLE_S
 
     ap = _Autopilot()
     cfgs, models = services["configs"], services["models"]

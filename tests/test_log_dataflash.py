@@ -129,8 +129,8 @@ def test_real_log_report(shared_logs: Path, real: LogRead) -> None:
     assert rep.last_time_s is not None and rep.last_time_s <= last[2].TimeUS * 1e-6
     assert log.duration_s == pytest.approx(1.0, abs=0.1)  # "1.05 s on the ground" (the README)
     assert rep.malformed == 0 and not rep.duplicates
-    assert set(rep.used) == {"IMU", "BARO", "MAG", "GPS", "RCOU"}
-    assert {"ATT", "NKF1", "IMU2", "MAG2", "AHR2"} <= set(rep.unknown)
+    assert set(rep.used) == {"IMU", "BARO", "MAG", "GPS", "RCOU", "ATT", "POS"}  # ATT, POS: the autopilot's estimate
+    assert {"NKF1", "IMU2", "MAG2", "AHR2"} <= set(rep.unknown)  # NKF1: POS is there
     assert real.truth is None
     assert any("no airspeed" in w for w in rep.warnings)  # no ARSP in this log
     assert not any("SERVO" in w for w in rep.warnings)  # SERVO1..4_FUNCTION are in the log
@@ -306,7 +306,9 @@ def test_synthetic_log_fields_units_instances_and_truth(tmp_path: Path) -> None:
     # no ports in a DataFlash log: the port array has its width and no rows
     assert log["ports_dp_pa"].shape == (0, 3) and any("no port values in the log" in w for w in rep.warnings)
     assert not any("SERVO" in w or "airspeed" in w for w in rep.warnings)
-    assert rep.unknown["ATT"] == 50 and rep.truncated_at_byte is None and rep.malformed == 0
+    # ATT without Yaw is no layout ArduPilot logs: skipped, not read as the autopilot's attitude
+    assert rep.unknown["ATT (unknown layout)"] == 50 and len(log["ap_att_t_s"]) == 0
+    assert rep.truncated_at_byte is None and rep.malformed == 0
     assert 10 <= len(calls) <= 101 and calls == sorted(calls) and calls[-1] == 1.0
 
 

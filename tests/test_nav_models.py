@@ -11,6 +11,7 @@ from vdm_aero.nav.contracts import ImuIncrement, jacobian_fd
 from vdm_aero.nav.engine import EkfEngine
 from vdm_aero.nav.ins import InsProcess
 from vdm_aero.nav.measurements import (
+    AutopilotAttitude,
     BaroAltitude,
     ClassicForce,
     ForceContext,
@@ -69,6 +70,8 @@ MODELS = [
     PortAirData(np.eye(3)),
     PortForce(np.array([-0.04, 0.01, -0.45]), CTX, np.ones(3)),
     ClassicForce(_Derivs(), np.array([0.1, -0.2, 0.05]), np.zeros(3), CTX, np.ones(3)),
+    # the autopilot's attitude 0.3 rad from the states': the exact Jacobian, not the small-angle −I
+    AutopilotAttitude(quat_from_euler(0.2, -0.15, 1.1), np.array([0.035, 0.035, 0.087])),
 ]
 
 

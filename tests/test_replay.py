@@ -179,6 +179,23 @@ def test_real_ulog_replays_end_to_end_with_its_decimation_warning(shared_logs: P
     assert doc["mag_field_source"].startswith("WMM")  # the field at the log's site and date, not a default
 
 
+def test_a_ground_station_tlog_replays_on_the_autopilots_attitude(shared_logs: Path, tmp_path: Path) -> None:
+    """ArduPlane's GCS telemetry: RAW_IMU at 4 Hz, too slow to integrate alone. Without the autopilot's ATTITUDE
+    fused, the INS drifted 5.4 km and dead reckoning 6.4 km in this 46 s outage; with it they hold hundreds and
+    tens of metres (as measured: 132 m and 33 m), and the report says why the figures are optimistic."""
+    path = shared_logs / "arduplane-sitl-gcs.tlog"
+    r = _replay(path, "--json", "--out", tmp_path / "r")
+    assert r.returncode == 0, r.stderr[-2000:]
+    doc = json.loads(r.stdout)
+    assert doc["rates_hz"]["imu"] == pytest.approx(4.2, abs=0.3)
+    assert any("autopilot's own attitude" in w and "optimistic" in w for w in doc["log"]["warnings"])
+    (o,) = doc["outages"]
+    assert o["end_s"] - o["start_s"] > 40.0
+    err = {m: v["final_error_m"] for m, v in o["modes"].items()}
+    assert err["ins"] < 400.0 and err["airspeed-dr"] < 100.0, err
+    assert all(v["covered_2sigma"] for v in o["modes"].values())  # the held-sample noise keeps σ honest
+
+
 @pytest.mark.parametrize(
     ("args", "needle"),
     [

@@ -20,11 +20,12 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from firmware_bridge import units
 from firmware_bridge.config import ConfigError, load_config
-from firmware_bridge.inputs import AutopilotClock, ImuIntegrator, PortAssembler
+from firmware_bridge.inputs import AutopilotClock, PortAssembler
 from firmware_bridge.outputs import gps_week_time, inflation
 from firmware_bridge.sd_notify import SdNotify
 from firmware_bridge.transport import parse_url
 from vdm_aero.errors import UserInputError
+from vdm_aero.nav.imu_increments import ImuIntegrator
 
 DEPLOY = Path(__file__).resolve().parent.parent / "deploy" / "config.yaml"
 
@@ -132,15 +133,14 @@ def test_imu_increments_integrate_a_constant_rate() -> None:
     w, f = np.array([0.1, -0.2, 0.3]), np.array([0.5, 0.0, -9.8])
     steps = []
     for k in range(401):  # 1 s at 400 Hz
-        s = units.ImuSample(k / 400.0, (0.1, -0.2, 0.3), (0.5, 0.0, -9.8), 20.0, None)
-        if (r := integ.add(s)) is not None:
+        if (r := integ.add(k / 400.0, (0.1, -0.2, 0.3), (0.5, 0.0, -9.8))) is not None:
             steps.append(r)
     assert len(steps) == 50
     for _, inc in steps:
         assert inc.dt_s == pytest.approx(0.02)
         np.testing.assert_allclose(inc.dtheta_b, w * 0.02, rtol=1e-9)
         np.testing.assert_allclose(inc.dvel_b, f * 0.02, rtol=1e-9)
-    assert integ.add(units.ImuSample(5.0, (0.0,) * 3, (0.0,) * 3, 20.0, None)) is None and integ.gaps == 1
+    assert integ.add(5.0, (0.0,) * 3, (0.0,) * 3) is None and integ.gaps == 1
 
 
 def test_clock_is_continuous_across_an_autopilot_reboot_and_timesync() -> None:

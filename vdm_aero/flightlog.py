@@ -11,7 +11,10 @@ A flight-log directory holds:
   ``baro_t_s``, ``baro_pa``; ``servo_t_s``, ``servo_pwm_us`` (K, 4, ArduPlane order aileron, elevator,
   throttle, rudder); ``gnss_t_s`` (time of validity), ``gnss_lat_deg``, ``gnss_lon_deg``, ``gnss_alt_m``,
   ``gnss_v_ned_m_s`` (G, 3); ``mag_t_s``, ``mag_field_b_t`` (H, 3). A stream the aircraft lacks (no pitot)
-  has zero rows.
+  has zero rows. What the autopilot's own estimator said, where the log holds it (optional, zero rows when
+  absent): ``ap_att_t_s``, ``ap_att_q_nb`` (A, 4: body FRD → NED, w x y z); ``ap_pos_t_s``,
+  ``ap_pos_lat_deg``, ``ap_pos_lon_deg``, ``ap_pos_alt_m`` (B,) — for comparison, and the autopilot's
+  attitude as a measurement where the IMU is logged too slowly to integrate (a ground station's tlog).
 * ``truth.npz`` (simulated flights only, for evaluation; never an input of calibration or navigation):
   at the port sample times ``t_s``, the aerodynamic coefficients ``coeffs`` (M, 6) (body axes about the
   true CG, on the true dynamic pressure ``qbar_pa`` and the reference geometry), ``airspeed_m_s``,
@@ -62,9 +65,20 @@ SENSOR_KEYS: dict[str, int] = {
     "gnss_v_ned_m_s": 2,
     "mag_t_s": 1,
     "mag_field_b_t": 2,
+    "ap_att_t_s": 1,
+    "ap_att_q_nb": 2,
+    "ap_pos_t_s": 1,
+    "ap_pos_lat_deg": 1,
+    "ap_pos_lon_deg": 1,
+    "ap_pos_alt_m": 1,
 }
 """Every sensor array and its number of dimensions."""
 _OPTIONAL = {"pitot_temperature_c": "pitot_t_s"}  # filled with NaN, one per row of its stream, when absent
+# the autopilot's own estimate: zero rows when a log has none (and in logs written before 2026-11-26)
+_EMPTY_IF_ABSENT: dict[str, tuple[int, ...]] = {
+    "ap_att_t_s": (0,), "ap_att_q_nb": (0, 4), "ap_pos_t_s": (0,), "ap_pos_lat_deg": (0,), "ap_pos_lon_deg": (0,),
+    "ap_pos_alt_m": (0,),
+}  # fmt: skip
 _STREAMS = {
     "imu": ("imu_t_s", "imu_accel_b_m_s2", "imu_gyro_b_rad_s", "imu_temperature_c"),
     "ports": ("ports_t_s", "ports_dp_pa"),
@@ -73,6 +87,8 @@ _STREAMS = {
     "servo": ("servo_t_s", "servo_pwm_us"),
     "gnss": ("gnss_t_s", "gnss_lat_deg", "gnss_lon_deg", "gnss_alt_m", "gnss_v_ned_m_s"),
     "mag": ("mag_t_s", "mag_field_b_t"),
+    "ap_att": ("ap_att_t_s", "ap_att_q_nb"),
+    "ap_pos": ("ap_pos_t_s", "ap_pos_lat_deg", "ap_pos_lon_deg", "ap_pos_alt_m"),
 }
 
 
@@ -104,6 +120,8 @@ class SensorLog:
         """The same log restricted to t0 ≤ t < t1 [s] in every stream."""
         out: dict[str, F64Array] = {}
         for keys in _STREAMS.values():
+            if keys[0] not in self.arrays:
+                continue  # an in-memory log built without the optional streams
             t = self.arrays[keys[0]]
             m = (t >= t0_s) & (t < t1_s)
             for k in keys:
@@ -121,6 +139,7 @@ def write_flight_log(
     truth: Mapping[str, np.ndarray] | None = None,
 ) -> Path:
     """Write a flight-log directory atomically; ``sensors`` must hold every key of :data:`SENSOR_KEYS`."""
+    sensors = {**{k: np.zeros(shape) for k, shape in _EMPTY_IF_ABSENT.items()}, **sensors}
     missing = sorted(set(SENSOR_KEYS) - set(sensors))
     if missing:
         raise ValueError(f"sensor arrays missing: {missing}")
@@ -171,7 +190,10 @@ def load_sensor_log(path: str | Path) -> SensorLog:
     f = root / "sensors.npz"
     try:
         with np.load(f, allow_pickle=False) as z:
-            arrays = {k: np.asarray(z[k], dtype=np.float64) for k in SENSOR_KEYS if k in z.files or k not in _OPTIONAL}
+            arrays = {k: np.asarray(z[k], dtype=np.float64) for k in SENSOR_KEYS
+                      if k in z.files or (k not in _OPTIONAL and k not in _EMPTY_IF_ABSENT)}  # fmt: skip
+        for k, shape in _EMPTY_IF_ABSENT.items():
+            arrays.setdefault(k, np.zeros(shape))
         for k, rows in _OPTIONAL.items():
             arrays.setdefault(k, np.full(len(arrays[rows]), np.nan))
     except KeyError as e:

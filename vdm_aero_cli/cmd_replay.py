@@ -4,7 +4,9 @@ The log is read by its format's reader (``firmware_bridge.logs``) into the SI st
 the live link, then every navigation mode the log allows runs through it on the filter path the benchmark
 and the service share, with the GNSS fixes removed inside each ``--outage`` window. Each mode's horizontal
 error is judged against a truth when there is one (SIMSTATE/SIM in ArduPilot SITL logs, ``--truth`` for the
-mock autopilot's), else against the log's own GNSS, which the filters did not see inside the windows.
+mock autopilot's), else against the log's own GNSS, which the filters did not see inside the windows. Where the
+log holds the autopilot's own position estimate, its error against the same reference is put beside the modes'
+outside the windows, where it had GNSS as the filters had (inside them it is no comparison).
 """
 
 from __future__ import annotations
@@ -35,8 +37,9 @@ def register(sub: Any) -> None:
         help="replay a flight log (.tlog, DataFlash .bin, ULog .ulg) with GNSS outages through every nav mode",
         description="Read a flight log, remove GNSS inside each outage window and run the navigation modes the log "
         "allows (ports: the port modes; none: ins, airspeed-dr, vdm-classic). Errors are judged against the log's "
-        "truth (ArduPilot SITL SIMSTATE/SIM, or --truth) or else its own GNSS. Writes a report (markdown, JSON), "
-        "the error-vs-time plot and the navigation solution (CSV) to --out.",
+        "truth (ArduPilot SITL SIMSTATE/SIM, or --truth) or else its own GNSS; the autopilot's own estimate, where the "
+        "log holds it, beside them outside the outages. Writes a report (markdown, JSON), the error-vs-time plot and "
+        "the navigation solution (CSV) to --out.",
     )
     p.add_argument("log", type=Path, nargs="?", metavar="LOG", help="the flight log")
     p.add_argument("--model", type=Path, metavar="M", help="aero model directory (DEIM, or DEIM + correction net)")

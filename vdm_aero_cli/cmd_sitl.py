@@ -46,8 +46,12 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--gcs-recording",
         action="store_true",
-        help="a ground station records the tlog from the start (named values flow without a companion; "
-        "set the streams with --stream-rate), e.g. with --connect null to write a flight log for replay",
+        help="a ground station records the tlog from the start, e.g. with --connect null to write a flight log "
+        "for replay. It asks for every stream group at 4 Hz, as MAVProxy does, so the tlog holds ArduPilot's GCS "
+        "set: RAW_IMU, SCALED_IMU2, SCALED_PRESSURE, SCALED_PRESSURE2, SYS_STATUS, GPS_RAW_INT, SERVO_OUTPUT_RAW, "
+        "GLOBAL_POSITION_INT, LOCAL_POSITION_NED, ATTITUDE, SIMSTATE (the truth), AOA_SSA, VFR_HUD, SYSTEM_TIME "
+        "and WIND at 4 Hz, HEARTBEAT at 1 Hz, and the scenario's pressure ports as NAMED_VALUE_FLOAT (they flow "
+        "without a companion); no HIGHRES_IMU. --stream-rate overrides any of these",
     )
     p.add_argument("--faults", type=Path, metavar="FILE",
                    help="scripted link and sensor faults in autopilot time (YAML, see docs/reliability.md): link "
@@ -76,6 +80,16 @@ def _rates(items: list[str]) -> dict[str, float]:
         except ValueError:
             raise UserInputError(f"--stream-rate: expected MSG=HZ (e.g. ATTITUDE=50), got {item!r}") from None
     return out
+
+
+def _stream_rates(args: argparse.Namespace) -> dict[str, float]:
+    """--stream-rate over what the recording ground station asks for (--gcs-recording)."""
+    rates = _rates(args.stream_rate)
+    if not args.gcs_recording:
+        return rates
+    from sim.sitl.streams import gcs_request_rates
+
+    return {**gcs_request_rates(), **rates}
 
 
 def run_sitl_cmd(args: argparse.Namespace) -> int:
@@ -122,7 +136,7 @@ def run_sitl_cmd(args: argparse.Namespace) -> int:
             duration_s=duration,
             tlog=args.tlog,
             truth=args.truth,
-            stream_rates=_rates(args.stream_rate) or None,
+            stream_rates=_stream_rates(args) or None,
             signing_key=key,
             require_signing=args.require_signing,
             ports_as_debug_array=args.ports_debug_array,

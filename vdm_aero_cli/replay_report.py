@@ -1,5 +1,6 @@
 """The replay's outputs: the reference it is judged against, the report (markdown + JSON), the error-vs-time
-plot and the navigation solution as CSV."""
+plot and the navigation solution as CSV. Where the log holds the autopilot's own position estimate, the report
+puts its error beside the modes' outside the outages (:func:`vdm_aero.nav.replay.compare_autopilot`)."""
 
 from __future__ import annotations
 
@@ -15,9 +16,17 @@ from firmware_bridge.logs import ReadReport, TruthTrack
 from vdm_aero.flightlog import SensorLog
 from vdm_aero.geodesy import LocalFrame
 from vdm_aero.nav.filter import MODES
-from vdm_aero.nav.replay import Reference, ReplayRun, score, solution_table
+from vdm_aero.nav.replay import Reference, ReplayRun, autopilot_estimate, compare_autopilot, score, solution_table
 
-__all__ = ["reference_of", "write_replay_report"]
+__all__ = ["autopilot_source", "reference_of", "write_replay_report"]
+
+# the messages an autopilot's own position estimate is read from, for a reader that does not name its source
+AP_POSITION_MESSAGES = ("GLOBAL_POSITION_INT", "POS", "XKF1", "NKF1", "vehicle_global_position",
+                        "vehicle_local_position")  # fmt: skip
+AP_NOT_COMPARABLE = ("not comparable inside the outages: the autopilot had GNSS throughout the real flight (the "
+                     "outages are cut out of the log only for the replay)")  # fmt: skip
+AP_NONE = ("none in the log (no GLOBAL_POSITION_INT, POS, XKF1/NKF1 with ORGN, vehicle_global_position or "
+           "vehicle_local_position with a global reference)")  # fmt: skip
 
 
 def reference_of(log: SensorLog, truth: TruthTrack | None, origin: tuple[float, float, float]) -> Reference:
@@ -30,6 +39,15 @@ def reference_of(log: SensorLog, truth: TruthTrack | None, origin: tuple[float, 
         return Reference(f"truth: {truth.source}", truth.t_s, p)
     p = np.asarray(frame.to_ned(log["gnss_lat_deg"], log["gnss_lon_deg"], log["gnss_alt_m"])).reshape(-1, 3)
     return Reference("the log's own GNSS (not seen by the filters inside the outages)", log["gnss_t_s"], p)
+
+
+def autopilot_source(log: SensorLog, rep: ReadReport) -> str | None:
+    """The message the log's autopilot position estimate came from (None: the log has none): the reader's
+    ``meta["ap_estimate"]``, else the known message it converted (the tlog reader counts GLOBAL_POSITION_INT)."""
+    if not len(log.arrays.get("ap_pos_t_s", ())):
+        return None
+    named = (log.meta.get("ap_estimate") or {}).get("position")
+    return str(named) if named else next((k for k in AP_POSITION_MESSAGES if rep.used.get(k)), "the log")
 
 
 def _jsonable(x: Any) -> Any:
@@ -51,6 +69,10 @@ def write_replay_report(out: Path, log: SensorLog, rep: ReadReport, run: ReplayR
                         models: dict[str, Any]) -> dict[str, Any]:  # fmt: skip
     out.mkdir(parents=True, exist_ok=True)
     sc = score(run, ref)
+    source = autopilot_source(log, rep)
+    ap = autopilot_estimate(log, run.origin, source) if source is not None else None
+    autopilot = ({**compare_autopilot(run, ref, ap), "inside_outages": AP_NOT_COMPARABLE} if ap is not None
+                 else {"source": None, "note": AP_NONE})  # fmt: skip
     doc = {
         "log": rep.to_dict(),
         "rates_hz": log.meta.get("rates_hz"),
@@ -64,6 +86,7 @@ def write_replay_report(out: Path, log: SensorLog, rep: ReadReport, run: ReplayR
         "skipped_modes": skipped,
         "reference": sc["reference"],
         "outages": sc["outages"],
+        "autopilot": autopilot,
         "port_counts": run.port_counts,
         "rejected": run.rejected,
         "speed": speed,
@@ -83,6 +106,7 @@ def write_replay_report(out: Path, log: SensorLog, rep: ReadReport, run: ReplayR
 def format_markdown(doc: dict[str, Any]) -> str:
     lg = doc["log"]
     sp = doc["speed"]
+    ap = doc["autopilot"]
     rates = doc["rates_hz"] or {}
     lines = [
         f"# Replay of {Path(lg['path']).name}",
@@ -125,6 +149,9 @@ def format_markdown(doc: dict[str, Any]) -> str:
                          f"| {f(r['sigma_h_end_m'])} | {cov} |")  # fmt: skip
         dist = next((r["distance_m"] for r in o["modes"].values() if r), None)
         lines += ["", f"Distance flown in the outage: {dist:.0f} m." if dist else "", ""]
+        if ap["source"] is not None:
+            lines += [f"The autopilot's own estimate ({ap['source']}) is {AP_NOT_COMPARABLE}: not in this table.", ""]
+    lines += _autopilot_markdown(ap)
     lines += [
         "## Read",
         "",
@@ -139,6 +166,24 @@ def format_markdown(doc: dict[str, Any]) -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def _autopilot_markdown(ap: dict[str, Any]) -> list[str]:
+    """The section that puts the autopilot's own estimate beside the modes, outside the outages."""
+    head = ["## Beside the autopilot's own estimate, outside the outages", ""]
+    if ap["source"] is None:
+        return [*head, f"The autopilot's own position estimate: {ap['note']}.", ""]
+    lines = [*head, f"The autopilot's own position estimate: {ap['source']}. Outside the outages it had GNSS, as the "
+             f"replayed filters had; judged against {ap['reference']}, over the same {ap['epochs']} epochs "
+             f"({ap['seconds']:.1f} s) for every row; the modes' largest errors are those just after an outage, "
+             "before the fixes pull them back.", ""]  # fmt: skip
+    if not ap["epochs"]:
+        return [*lines, "No epoch outside the outages has the reference, the autopilot's estimate and every mode.", ""]
+    lines += ["| | median error [m] | 95th percentile [m] | max [m] |", "|---|---|---|---|"]
+    rows = {"autopilot (its own estimate)": ap["autopilot"], **ap["modes"]}
+    for name, r in rows.items():
+        lines.append(f"| {name} | {r['median_error_m']:.2f} | {r['p95_error_m']:.2f} | {r['max_error_m']:.2f} |")
+    return [*lines, ""]
 
 
 def plot_errors(curves: dict[str, Any], outages: tuple[tuple[float, float], ...], ref: str, path: Path) -> None:

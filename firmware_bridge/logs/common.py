@@ -19,6 +19,7 @@ import numpy as np
 
 from vdm_aero._typing import F64Array
 from vdm_aero.flightlog import SENSOR_KEYS, FlightLogError, SensorLog
+from vdm_aero.nav.filter import SLOW_IMU_HZ
 
 __all__ = ["LogFormatError", "LogRead", "ReadReport", "StreamBuilder", "TruthTrack"]
 
@@ -96,7 +97,9 @@ class StreamBuilder:
 
     def __init__(self, port_names: Sequence[str] = ()) -> None:
         self.port_names = tuple(port_names)
-        self._rows: dict[str, list[Any]] = {k: [] for k in ("imu", "ports", "pitot", "baro", "servo", "gnss", "mag")}
+        self._rows: dict[str, list[Any]] = {
+            k: [] for k in ("imu", "ports", "pitot", "baro", "servo", "gnss", "mag", "ap_att", "ap_pos")
+        }
 
     def imu(self, t_s: float, gyro_b_rad_s: Vec, accel_b_m_s2: Vec, temperature_c: float) -> None:
         self._rows["imu"].append((t_s, *gyro_b_rad_s, *accel_b_m_s2, temperature_c))
@@ -124,6 +127,14 @@ class StreamBuilder:
         """One port frame in :attr:`port_names` order (NaN for a port that did not arrive)."""
         self._rows["ports"].append((t_s, *dp_pa))
 
+    def ap_attitude(self, t_s: float, q_nb: Vec) -> None:
+        """The autopilot's own attitude estimate (body FRD → NED quaternion, w x y z)."""
+        self._rows["ap_att"].append((t_s, *q_nb))
+
+    def ap_position(self, t_s: float, lat_deg: float, lon_deg: float, alt_m: float) -> None:
+        """The autopilot's own position estimate (altitude above mean sea level [m])."""
+        self._rows["ap_pos"].append((t_s, lat_deg, lon_deg, alt_m))
+
     def __len__(self) -> int:
         return sum(len(v) for v in self._rows.values())
 
@@ -147,6 +158,8 @@ class StreamBuilder:
         servo = self._table("servo", 5, report)
         gnss = self._table("gnss", 7, report)
         mag = self._table("mag", 4, report)
+        att = self._table("ap_att", 5, report)
+        pos = self._table("ap_pos", 4, report)
         arrays: dict[str, F64Array] = {
             "imu_t_s": imu[:, 0], "imu_gyro_b_rad_s": imu[:, 1:4], "imu_accel_b_m_s2": imu[:, 4:7],
             "imu_temperature_c": imu[:, 7], "ports_t_s": ports[:, 0], "ports_dp_pa": ports[:, 1:],
@@ -155,15 +168,23 @@ class StreamBuilder:
             "servo_t_s": servo[:, 0], "servo_pwm_us": servo[:, 1:], "gnss_t_s": gnss[:, 0],
             "gnss_lat_deg": gnss[:, 1], "gnss_lon_deg": gnss[:, 2], "gnss_alt_m": gnss[:, 3],
             "gnss_v_ned_m_s": gnss[:, 4:7], "mag_t_s": mag[:, 0], "mag_field_b_t": mag[:, 1:],
+            "ap_att_t_s": att[:, 0], "ap_att_q_nb": att[:, 1:], "ap_pos_t_s": pos[:, 0], "ap_pos_lat_deg": pos[:, 1],
+            "ap_pos_lon_deg": pos[:, 2], "ap_pos_alt_m": pos[:, 3],
         }  # fmt: skip
         assert set(arrays) == set(SENSOR_KEYS)
-        starts = [a[0] for k, a in arrays.items() if k.endswith("_t_s") and len(a)]
-        ends = [a[-1] for k, a in arrays.items() if k.endswith("_t_s") and len(a)]
+        sensed = [a for k, a in arrays.items() if k.endswith("_t_s") and not k.startswith("ap_") and len(a)]
+        starts, ends = [a[0] for a in sensed], [a[-1] for a in sensed]
         duration = (max(ends) - min(starts)) if starts else 0.0
         report.last_time_s = max(ends) if ends else None
         rates = {s: _rate_hz(arrays[f"{s}_t_s"]) for s in ("imu", "ports", "pitot", "baro", "servo", "gnss", "mag")}
         imu_hz = rates["imu"]
-        if len(imu) >= 2 and imu_hz < LOW_IMU_RATE_HZ:
+        if len(imu) >= 2 and imu_hz < SLOW_IMU_HZ and len(att):
+            report.warn(
+                f"{path.name}: IMU at {imu_hz:.1f} Hz, too slow to integrate alone: the autopilot's own attitude "
+                f"({_rate_hz(att[:, 0]):.1f} Hz) is fused as a measurement; the autopilot had GNSS through the "
+                "whole flight, outages cut in here included, so the outage figures are optimistic"
+            )
+        elif len(imu) >= 2 and imu_hz < LOW_IMU_RATE_HZ:
             report.warn(
                 f"{path.name}: IMU at {imu_hz:.1f} Hz (< {LOW_IMU_RATE_HZ:g} Hz: a decimated log?); the "
                 "strapdown integration between samples is poor and the drift figures are not representative"

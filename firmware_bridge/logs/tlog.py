@@ -6,31 +6,39 @@ MAVLink 1 or 2 frame. The records are framed here from the frame headers (the le
 only the messages the stream needs are decoded, by pymavlink, with their CRC checked: the others are counted
 by type and skipped undecoded, which makes reading about ten times faster than ``mavutil``'s generic loop.
 
-The conversion is the service's (:mod:`firmware_bridge.units`, :class:`~firmware_bridge.inputs.PortAssembler`,
-:class:`~firmware_bridge.inputs.AutopilotClock`), so a replayed tlog gives the filter what the live link gave
-it. Times are the autopilot's own (``time_usec`` / ``time_boot_ms``, boot time made continuous across
-reboots); the tlog's wall-clock stamps are used only for what carries no autopilot time (SIMSTATE) and to
-close partial port frames.
+The messages are decoded by the service's own decoder (:class:`firmware_bridge.decode.MavlinkDecoder`: its
+table of converters, its choice of streams, its clock), so a replayed tlog gives the filter what the live
+link gave it; this module only frames the records and collects the samples. Times are the autopilot's own
+(``time_usec`` / ``time_boot_ms``, boot time made continuous across reboots); the tlog's wall-clock stamps
+are used only for what carries no autopilot time (SIMSTATE) and to close partial port frames.
 
-===================  =========================================================================
-message              stream
-===================  =========================================================================
-HIGHRES_IMU          IMU (SI floats) and magnetometer (gauss → µT); preferred when present
-SCALED_IMU           IMU (mG, mrad/s) and magnetometer (mgauss) when there is no HIGHRES_IMU
-SCALED_PRESSURE      static pressure (hPa → Pa) and pitot Δp (hPa → Pa; exactly 0 = no sensor)
-GPS_RAW_INT          3-D fixes (degE7, mm, cm/s, cdeg; no vertical velocity → v_D NaN); stamped when the
-                     autopilot received the fix, so the time of validity is the stamp less the autopilot's
-                     default receiver lag (ArduPilot 0.12 s, PX4 0.11 s: units.GNSS_LATENCY_DEFAULT_S)
-SERVO_OUTPUT_RAW     PWM of servo 1–4 (ArduPlane order: aileron, elevator, throttle, rudder)
-NAMED_VALUE_FLOAT    port Δp [Pa], one message per port (the Lua script / the mock)
-DEBUG_FLOAT_ARRAY    port Δp [Pa], one message per frame (``ports_array_id``)
-SYSTEM_TIME          UTC of the autopilot's boot
-SIMSTATE, SIM_STATE  truth in ArduPilot SITL (the simulator's position and attitude)
-===================  =========================================================================
+=========================  ===================================================================
+message                    stream
+=========================  ===================================================================
+HIGHRES_IMU                IMU (SI floats), magnetometer (gauss → µT); PX4: barometer and
+                           airspeed Δp (hPa → Pa) when ``fields_updated`` marks them new
+RAW_IMU (ArduPilot)        the first IMU, already scaled by ArduPilot (mG, mrad/s, mgauss)
+SCALED_IMU, SCALED_IMU2/3  the first, second, third IMU (mG, mrad/s, mgauss); the best of these
+                           IMU streams heard is used (decode.IMU_SOURCES; the report says which)
+SCALED_PRESSURE, …2, …3    static pressure (hPa → Pa) and airspeed Δp (exactly 0 = no sensor) of
+                           barometer / airspeed sensor 1, 2, 3: the first alive is used
+GPS_RAW_INT                3-D fixes (degE7, mm, cm/s, cdeg; no vertical velocity → v_D NaN);
+                           stamped when the autopilot received the fix, so the time of validity is
+                           the stamp less the autopilot's default receiver lag (ArduPilot 0.12 s,
+                           PX4 0.11 s: units.GNSS_LATENCY_DEFAULT_S)
+SERVO_OUTPUT_RAW           PWM of servo 1–4 (ArduPlane order: aileron, elevator, throttle, rudder)
+NAMED_VALUE_FLOAT          port Δp [Pa], one message per port (the Lua script / the mock)
+DEBUG_FLOAT_ARRAY          port Δp [Pa], one message per frame (``ports_array_id``)
+SYSTEM_TIME                UTC of the autopilot's boot
+ATTITUDE                   the autopilot's own attitude estimate (rad → quaternion)
+GLOBAL_POSITION_INT        the autopilot's own position estimate (degE7, mm AMSL)
+SIMSTATE, SIM_STATE        truth in ArduPilot SITL (the simulator's position and attitude)
+=========================  ===================================================================
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 import mmap
 import struct
@@ -41,8 +49,11 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from firmware_bridge import units
-from firmware_bridge.inputs import AutopilotClock, PortAssembler, PortFrameIn
+from firmware_bridge.decode import IMU_SOURCES, MESSAGES, MavlinkDecoder
+from firmware_bridge.endpoint import MavlinkMessage
+from firmware_bridge.inputs import PortFrameIn
 from firmware_bridge.logs.common import LogFormatError, LogRead, ReadReport, StreamBuilder, TruthTrack
+from vdm_aero._typing import F64Array
 from vdm_aero.rotation import quat_from_euler
 
 __all__ = ["read_tlog"]
@@ -50,46 +61,34 @@ __all__ = ["read_tlog"]
 STAMP = struct.Struct(">Q")
 V1, V2 = 0xFE, 0xFD
 V2_SIGNED = 0x01
-UNIX_USEC_MIN = 10**15  # time_usec above this is Unix time (2001+), not time since boot
-UINT32_WRAP_S = 2**32 * 1e-6  # SERVO_OUTPUT_RAW.time_usec is a uint32: it wraps every 71.6 min
 STAMP_PLAUSIBLE_US = 86_400 * 10**6  # resynchronising: a record stamped within a day of the last good one
 PORT_FRAME_TIMEOUT_S = 0.05
 PROGRESS_EVERY_BYTES = 1 << 20
-_NEEDED = {
-    "HEARTBEAT", "HIGHRES_IMU", "SCALED_IMU", "SCALED_PRESSURE", "GPS_RAW_INT", "SERVO_OUTPUT_RAW",
-    "NAMED_VALUE_FLOAT", "DEBUG_FLOAT_ARRAY", "SYSTEM_TIME", "SIMSTATE", "SIM_STATE",
-}  # fmt: skip
-_NOT_VEHICLES = (mavlink2.MAV_TYPE_GCS, mavlink2.MAV_TYPE_ONBOARD_CONTROLLER)
 _NAMES = {i: getattr(c, "msgname", str(i)) for i, c in mavlink2.mavlink_map.items()}
-_NEEDED_IDS = {i for i, n in _NAMES.items() if n in _NEEDED}
+_NEEDED_IDS = {i for i, n in _NAMES.items() if n in MESSAGES}  # the rest is counted undecoded
 
 
 class _Reader:
+    """Frames the file's records and is the decoder's sink: the SI samples go to a :class:`StreamBuilder`."""
+
     def __init__(self, path: Path, port_names: Sequence[str], system_id: int | None, ports_array_id: int,
                  gnss_latency_s: float | None = None) -> None:  # fmt: skip
         self.path = path
         self.report = ReadReport(path=path, format="tlog", time_base="")
         self.builder = StreamBuilder(port_names)
         self.mav = mavlink2.MAVLink(None)
-        self.system_id = system_id
-        self.autopilot: tuple[int, int] | None = None
-        self.latency_given = gnss_latency_s
-        self.gnss_latency_s = (
-            gnss_latency_s if gnss_latency_s is not None else units.GNSS_LATENCY_DEFAULT_S["ardupilot"]
+        self.decoder = MavlinkDecoder(
+            self,
+            system_id=system_id,
+            port_names=port_names,
+            ports_array_id=ports_array_id,
+            port_frame_timeout_s=PORT_FRAME_TIMEOUT_S,
+            gnss_latency_s=gnss_latency_s,
         )
-        self.ports_array_id = ports_array_id
-        self.n_ports = len(port_names)
-        self.assembler = PortAssembler(port_names, timeout_s=PORT_FRAME_TIMEOUT_S) if port_names else None
-        self.clock = AutopilotClock()
         self.boot_minus_stamp_s: float | None = None  # autopilot time − tlog stamp, from the latest IMU sample
-        self.imu_t_s = -math.inf  # the latest IMU time (continuous)
-        self.scaled_imu: list[units.ImuSample] = []
-        self.highres = 0
-        self.last_mag: tuple[float, float, float] | None = None
         self.unix_boot: list[float] = []
         self.truth: list[tuple[float, ...]] = []
         self.truth_source = ""
-        self.dfa_frames = 0
 
     # -------------------------------------------------------------------------------------- framing
     def read(self, progress: Callable[[float], None] | None) -> None:
@@ -146,8 +145,7 @@ class _Reader:
             self._message(msg, stamp * 1e-6)
         if decoded == 0:  # records skipped undecoded are not proof: garbage can look like a frame header
             raise LogFormatError(f"{self.path}: no valid MAVLink message with a sensor stream (not a telemetry log)")
-        if self.assembler is not None and (fr := self.assembler.expire(math.inf)) is not None:
-            self._port_frame(fr)
+        self.decoder.expire_ports(math.inf)
 
     def _resync(self, buf: mmap.mmap, pos: int, size: int, last_stamp: int | None) -> int:
         """A record that is not one (garbage, a corrupted length): count it and look for the next offset whose
@@ -162,90 +160,58 @@ class _Reader:
             p += 1
         return size
 
-    # ------------------------------------------------------------------------------------- messages
+    # ------------------------------------------------------------------------- the decoder's sink
     def _message(self, m: mavlink2.MAVLink_message, stamp_s: float) -> None:
-        kind = m.get_type()
-        src = (m.get_srcSystem(), m.get_srcComponent())
-        if kind == "HEARTBEAT":
-            is_autopilot = m.autopilot != mavlink2.MAV_AUTOPILOT_INVALID and m.type not in _NOT_VEHICLES
-            if self.autopilot is None and is_autopilot and self.system_id in (None, src[0]):
-                self.autopilot = src
-                if self.latency_given is None:
-                    self.gnss_latency_s = units.gnss_latency_default_s(int(m.autopilot))
-            return
-        if src != self.autopilot:
-            self.report.skip(f"{kind} (not from the autopilot)")
-            return
-        rep = self.report
-        if kind == "HIGHRES_IMU":
-            self.highres += 1
-            self._imu(units.from_highres_imu(m), stamp_s)
-        elif kind == "SCALED_IMU":
-            self.scaled_imu.append(units.from_scaled_imu(m))
-        elif kind == "SCALED_PRESSURE":
-            try:
-                s = units.from_scaled_pressure(m)
-            except ValueError:  # an impossible static pressure (a glitched sensor): skipped and counted
-                rep.skip("SCALED_PRESSURE (static pressure out of range)")
-                return
-            t = self.clock.filter_s(s.t_s)
-            self.builder.baro(t, s.static_pa)
-            if math.isfinite(s.pitot_dp_pa):
-                self.builder.pitot(t, s.pitot_dp_pa, s.pitot_temperature_c)
-        elif kind == "GPS_RAW_INT":
-            fix = units.from_gps_raw_int(m)
-            if fix is None:
-                rep.skip("GPS_RAW_INT (no 3-D fix)")
-                return
-            t = fix.t_s - self.gnss_latency_s  # the time of validity (the log's gnss_t_s)
-            if m.time_usec > UNIX_USEC_MIN:  # some autopilots stamp fixes in Unix time
-                if not self.unix_boot:
-                    rep.skip("GPS_RAW_INT (Unix time before SYSTEM_TIME)")
-                    return
-                t -= float(np.median(self.unix_boot))
-            self.builder.gnss(self.clock.filter_s(t), fix.lat_deg, fix.lon_deg, fix.alt_m, fix.v_ned_m_s)
-        elif kind == "SERVO_OUTPUT_RAW":
-            pwm = units.from_servo_output_raw(m)
-            t = pwm.t_s
-            if math.isfinite(self.imu_t_s):  # unwrap the uint32 µs against the IMU's clock
-                t += round((self.clock.boot_s(self.imu_t_s) - t) / UINT32_WRAP_S) * UINT32_WRAP_S
-            self.builder.servo(self.clock.filter_s(t), pwm.pwm_us[:4])
-        elif kind == "NAMED_VALUE_FLOAT":
-            if self.assembler is None:
-                rep.skip("NAMED_VALUE_FLOAT (no port names given)")
-                return
-            name = m.name if isinstance(m.name, str) else m.name.decode("ascii", "replace")
-            for fr in self.assembler.add(int(m.time_boot_ms), name.rstrip("\0"), float(m.value), stamp_s):
-                self._port_frame(fr)
-        elif kind == "DEBUG_FLOAT_ARRAY":
-            if self.n_ports == 0 or m.array_id != self.ports_array_id:
-                rep.skip("DEBUG_FLOAT_ARRAY (not the ports)")
-                return
-            self.dfa_frames += 1
-            if self.assembler is None or self.assembler.counts["complete"] == 0:  # named values win when both
-                self._port_frame(PortFrameIn(m.time_usec * 1e-6, np.asarray(m.data[: self.n_ports], float), True,
-                                             stamp_s))  # fmt: skip
-        elif kind == "SYSTEM_TIME":
-            if m.time_unix_usec > 0:
-                self.unix_boot.append(m.time_unix_usec * 1e-6 - m.time_boot_ms * 1e-3)
-        elif kind in ("SIMSTATE", "SIM_STATE"):
-            self._truth(m, kind, stamp_s)
-            return
-        rep.count(kind)
+        try:
+            self.decoder.feed(m, stamp_s)
+        except ValueError as e:  # a message no autopilot sends (a glitched sensor): skipped, counted, named once
+            kind = m.get_type()
+            if f"{kind} (refused)" not in self.report.unknown:
+                self.report.warn(f"{self.path.name}: {kind} refused (the first of them): {e}")
+            self.report.skip(f"{kind} (refused)")
 
-    def _imu(self, s: units.ImuSample, stamp_s: float) -> None:
-        if self.clock.observe_boot_s(s.t_s):
-            self.report.reboots += 1
-        t = self.clock.filter_s(s.t_s)
-        self.imu_t_s = t
-        self.boot_minus_stamp_s = t - stamp_s
-        self.builder.imu(t, s.gyro_b_rad_s, s.accel_b_m_s2, s.temperature_c)
-        if s.mag_b_ut is not None and s.mag_b_ut != self.last_mag:
-            self.last_mag = s.mag_b_ut  # HIGHRES_IMU repeats a slower magnetometer's sample: keep new ones
-            self.builder.mag(t, s.mag_b_ut)
+    def on_autopilot(self, src: tuple[int, int], new: bool, t_in: float) -> None:
+        pass
 
-    def _port_frame(self, fr: PortFrameIn) -> None:
-        self.builder.ports(self.clock.filter_s(fr.t_s), fr.dp_pa)
+    def on_reboot(self, boot_s: float) -> None:
+        self.report.reboots += 1
+
+    def on_imu_source(self, kind: str) -> None:
+        pass
+
+    def on_imu(self, t_s: float, s: units.ImuSample, t_in: float) -> None:
+        self.boot_minus_stamp_s = t_s - t_in
+        self.builder.imu(t_s, s.gyro_b_rad_s, s.accel_b_m_s2, s.temperature_c)
+
+    def on_mag(self, t_s: float, field_b_ut: tuple[float, float, float]) -> None:
+        self.builder.mag(t_s, field_b_ut)
+
+    def on_baro(self, t_s: float, static_pa: float) -> None:
+        self.builder.baro(t_s, static_pa)
+
+    def on_pitot(self, t_s: float, dp_pa: float, temperature_c: float) -> None:
+        self.builder.pitot(t_s, dp_pa, temperature_c)
+
+    def on_gnss(self, t_valid_s: float, t_arrived_s: float, fix: units.GnssFix) -> None:
+        self.builder.gnss(t_valid_s, fix.lat_deg, fix.lon_deg, fix.alt_m, fix.v_ned_m_s)
+
+    def on_servo(self, t_s: float, pwm_us: F64Array) -> None:
+        self.builder.servo(t_s, pwm_us[:4])
+
+    def on_ports(self, t_s: float, frame: PortFrameIn) -> None:
+        self.builder.ports(t_s, frame.dp_pa)
+
+    def on_system_time(self, unix_minus_boot_s: float) -> None:
+        self.unix_boot.append(unix_minus_boot_s)
+
+    def on_truth(self, kind: str, msg: MavlinkMessage, t_in: float) -> None:
+        self._truth(msg, kind, t_in)
+
+    def on_ap_attitude(self, t_s: float, q_nb: F64Array) -> None:
+        self.builder.ap_attitude(t_s, q_nb)
+
+    def on_ap_position(self, t_s: float, lat_deg: float, lon_deg: float, alt_m: float) -> None:
+        self.builder.ap_position(t_s, lat_deg, lon_deg, alt_m)
 
     def _truth(self, m: mavlink2.MAVLink_message, kind: str, stamp_s: float) -> None:
         if self.boot_minus_stamp_s is None:
@@ -264,35 +230,37 @@ class _Reader:
 
     # ---------------------------------------------------------------------------------------- result
     def result(self) -> LogRead:
-        rep = self.report
-        if self.autopilot is None:
+        rep, dec = self.report, self.decoder
+        if dec.autopilot is None:
             raise LogFormatError(f"{self.path}: no autopilot HEARTBEAT (cannot tell the autopilot's messages apart)")
-        if self.highres == 0:
-            for s in self.scaled_imu:  # the coarser integers, only when there is nothing better
-                self._imu(s, math.nan)
-            if self.scaled_imu:
-                rep.used["SCALED_IMU"] = len(self.scaled_imu)
-        elif self.scaled_imu:
-            rep.unknown["SCALED_IMU (HIGHRES_IMU used)"] = len(self.scaled_imu)
-        rep.time_base = ("HIGHRES_IMU.time_usec" if self.highres else "SCALED_IMU.time_boot_ms") + (
-            " (autopilot boot time" + (f", {self.clock.reboots} reboot(s) made continuous)" if self.clock.reboots
-                                       else ")"))  # fmt: skip
-        if self.assembler is not None:
-            c = self.assembler.counts
+        for k, n in dec.used.items():
+            rep.used[k] = rep.used.get(k, 0) + n
+        for k, n in dec.skipped.items():
+            rep.unknown[k] = rep.unknown.get(k, 0) + n
+        rep.duplicates.update(dec.duplicates)
+        reboots = f", {dec.clock.reboots} reboot(s) made continuous" if dec.clock.reboots else ""
+        stamps = [k + (".time_usec" if k in ("HIGHRES_IMU", "RAW_IMU") else ".time_boot_ms") for k in dec.imu_switches]
+        imu = " then ".join(stamps) if stamps else "no IMU stream"
+        rep.time_base = f"{imu} (autopilot boot time{reboots})"
+        rank = [IMU_SOURCES.index(k) for k in dec.imu_switches]
+        if any(b > a for a, b in itertools.pairwise(rank)):  # a fall-back to a worse stream, not a better one arriving
+            rep.warn(f"{self.path.name}: the IMU stream changed during the log ({imu}): a sensor or stream stopped")
+        if (a := dec.assembler) is not None:
+            c = a.counts
             rep.used["port frames"] = c["complete"] + c["partial"]
             if c["partial"]:
                 rep.warn(f"{self.path.name}: {c['partial']} port frames incomplete (missing ports are NaN)")
             if c["unknown_name"]:
                 rep.unknown["NAMED_VALUE_FLOAT (not a port)"] = c["unknown_name"]
-            if c["complete"] + c["partial"] + self.dfa_frames == 0:
-                rep.warn(f"{self.path.name}: no port values ({', '.join(self.assembler.names)}) in the log")
+            if c["complete"] + c["partial"] + dec.dfa_frames == 0:
+                rep.warn(f"{self.path.name}: no port values ({', '.join(a.names)}) in the log")
         truth = None
         if self.truth:
-            a = np.array(self.truth)
-            truth = TruthTrack(self.truth_source, a[:, 0], a[:, 1], a[:, 2], a[:, 3], None, a[:, 4:8])
+            t = np.array(self.truth)
+            truth = TruthTrack(self.truth_source, t[:, 0], t[:, 1], t[:, 2], t[:, 3], None, t[:, 4:8])
         unix = float(np.median(self.unix_boot)) if self.unix_boot else None
-        log = self.builder.build(self.path, rep, meta={"autopilot": list(self.autopilot),
-                                                       "gnss_latency_s": self.gnss_latency_s})  # fmt: skip
+        log = self.builder.build(self.path, rep, meta={"autopilot": list(dec.autopilot), "imu": dec.imu_source,
+                                                       "gnss_latency_s": dec.gnss_latency_s})  # fmt: skip
         return LogRead(log, truth, rep, unix)
 
 

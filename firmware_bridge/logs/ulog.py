@@ -24,11 +24,18 @@ vehicle_global_position_           truth (SITL only): lat/lon/alt
 groundtruth
 vehicle_local_position_            truth (SITL only, when there is no global one): NED offsets from
 groundtruth                        ref_lat/ref_lon/ref_alt, and the velocity
+vehicle_attitude                   the autopilot's own attitude (ap_att): q, w x y z, body FRD → NED
+vehicle_global_position            the autopilot's own position (ap_pos): lat, lon [deg], alt [m AMSL]
+                                   (rows with lat_lon_valid false, where logged, left out)
+vehicle_local_position             the same when there is no vehicle_global_position: x, y, z [m NED]
+                                   from ref_lat, ref_lon, ref_alt, in the rows with xy_global (the EKF
+                                   had its GNSS origin) and xy_valid; alt NaN where z_global is false
 =================================  ===============================================================
 
 PX4's actuator_outputs depend on the airframe's mixer, so there is no generic map to (aileron, elevator,
 throttle, rudder): no servo stream (warned). vehicle_global_position is the autopilot's own EKF, not a
-truth. PX4 logs carry no pressure ports.
+truth: it is read only as the autopilot's estimate, for comparison (``log.meta["ap_estimate"]`` names the
+topics). PX4 logs carry no pressure ports.
 """
 
 from __future__ import annotations
@@ -137,6 +144,7 @@ def read_ulog(path: Path, port_names: Sequence[str] = (), *, progress: Callable[
     gps = take("vehicle_gps_position")
     unix_boot = _gnss(b, gps if gps is not None else take("sensor_gps"), report)
     truth = _truth(topics)
+    ap_estimate = _ap_estimate(b, topics, report)
 
     report.warn(f"{path.name}: no servo stream: PX4's actuator_outputs depend on the airframe's mixer (no generic "
                 "map to aileron, elevator, throttle, rudder); the force-model modes run without control "
@@ -148,7 +156,7 @@ def read_ulog(path: Path, port_names: Sequence[str] = (), *, progress: Callable[
     _integrity(path, ulog, guard, printed, report)
     info = ulog.msg_info_dict
     meta = {"autopilot": "PX4", **{k: str(info[k]) for k in ("ver_sw_branch", "ver_sw", "ver_hw") if k in info},
-            "gnss_alt": "AMSL"}  # fmt: skip
+            "gnss_alt": "AMSL", "ap_estimate": ap_estimate}  # fmt: skip
     log = b.build(path, report, meta=meta)
     if progress is not None:
         progress(1.0)
@@ -285,6 +293,49 @@ def _truth(topics: _Topics) -> TruthTrack | None:
         v = np.stack([np.asarray(lp[k], np.float64) for k in ("vx", "vy", "vz")], axis=1)
         return TruthTrack(source=src, t_s=_t_s(lp), lat_deg=lat, lon_deg=lon, alt_m=alt, v_ned_m_s=v)
     return None
+
+
+def _ap_estimate(b: StreamBuilder, topics: _Topics, report: ReadReport) -> dict[str, str | None]:
+    """The autopilot's own attitude and position estimate (module docstring) into the builder; the topics read."""
+    out: dict[str, str | None] = {"position": None, "attitude": None}
+    if (att := topics.take("vehicle_attitude")) is not None:
+        q = np.stack([np.asarray(att[f"q[{i}]"], np.float64) for i in range(4)], axis=1)
+        for t, qi in zip(_t_sample_s(att), q, strict=True):
+            if np.isfinite(qi).all() and qi.any():  # a zero quaternion is no attitude (none estimated yet)
+                b.ap_attitude(float(t), qi)
+        out["attitude"] = "vehicle_attitude"
+    if (gp := topics.take("vehicle_global_position")) is not None:
+        ok = np.asarray(gp.get("lat_lon_valid", np.ones(len(gp["timestamp"]))), dtype=bool)
+        lat, lon, alt = (np.asarray(gp[k], np.float64) for k in ("lat", "lon", "alt"))
+        if "alt_valid" in gp:
+            alt = np.where(np.asarray(gp["alt_valid"], dtype=bool), alt, math.nan)
+        t = _t_sample_s(gp)
+        for i in np.flatnonzero(ok):
+            b.ap_position(float(t[i]), float(lat[i]), float(lon[i]), float(alt[i]))
+        out["position"] = "vehicle_global_position"
+        return out
+    lp = topics.peek("vehicle_local_position")
+    if lp is None or "ref_lat" not in lp:
+        return out
+    n = len(lp["timestamp"])
+    ok = np.asarray(lp.get("xy_global", np.zeros(n)), dtype=bool) & np.asarray(lp.get("xy_valid", np.ones(n)), bool)
+    if not ok.any():
+        report.warn(f"{report.path.name}: vehicle_local_position never has a global reference (xy_global: the EKF "
+                    "had no GNSS origin): no autopilot position estimate")  # fmt: skip
+        return out
+    topics.take("vehicle_local_position")
+    ned = np.stack([np.asarray(lp[k], np.float64) for k in "xyz"], axis=1)
+    ref = np.stack([np.asarray(lp[k], np.float64) for k in ("ref_lat", "ref_lon", "ref_alt")], axis=1)
+    z_global = np.asarray(lp.get("z_global", np.ones(n)), dtype=bool)
+    t = _t_sample_s(lp)
+    # the reference moves when the EKF resets its origin: each run of rows is made geodetic at its own
+    for r in np.unique(ref[ok], axis=0):
+        sel = np.flatnonzero(ok & np.all(ref == r, axis=1))
+        lat, lon, alt = LocalFrame(*(float(v) for v in r)).to_geodetic_array(ned[sel])
+        for i, la, lo, al in zip(sel, lat, lon, alt, strict=True):
+            b.ap_position(float(t[i]), float(la), float(lo), float(al) if z_global[i] else math.nan)
+    out["position"] = "vehicle_local_position"
+    return out
 
 
 def _integrity(path: Path, ulog: Any, guard: _GuardedFile, printed: str, report: ReadReport) -> None:

@@ -104,7 +104,7 @@ def fly(
             progress((i + 1) / n)
     n_ports = len(world.ports)
     empty_cols = {"imu_accel_b_m_s2": 3, "imu_gyro_b_rad_s": 3, "ports_dp_pa": n_ports, "servo_pwm_us": 4,
-                  "gnss_v_ned_m_s": 3, "mag_field_b_t": 3}  # fmt: skip
+                  "gnss_v_ned_m_s": 3, "mag_field_b_t": 3, "ap_att_q_nb": 4}  # fmt: skip
     sensors = {
         k: (np.asarray(v, dtype=np.float64) if v else np.zeros((0, empty_cols[k]) if k in empty_cols else 0))
         for k, v in rec.items()

@@ -27,7 +27,7 @@ from typing import TypedDict
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from sim.flight.contract import World, WorldTick
+from sim.flight.contract import BaroSample, ImuSample, World, WorldTick
 from sim.sitl.faults import FaultSchedule
 from sim.sitl.link import Link, MavlinkEndpoint, MavlinkMessage, SigningConfig, open_link
 from sim.sitl.streams import (
@@ -68,6 +68,20 @@ class DeadReckoningDrift:
 
 
 @dataclass(frozen=True)
+class SecondSensors:
+    """IMU 2 (SCALED_IMU2) and barometer 2 (SCALED_PRESSURE2). The worlds carry one IMU and one barometer, so
+    each second sensor is the first's sample plus independent white noise drawn from the mock's own seeded
+    :class:`numpy.random.Generator` (its biases are the first's: no second error model). σ per sample: the
+    ICM-42688-P's noise densities at 400 Hz (70 µg/√Hz, 2.8 mdps/√Hz) and the MS5611's RMS resolution (1.2 Pa),
+    the grades of sim/flight/sensors.py."""
+
+    accel_sigma_m_s2: float = 70e-6 * 9.80665 * 20.0
+    gyro_sigma_rad_s: float = math.radians(2.8e-3) * 20.0
+    baro_sigma_pa: float = 1.2
+    seed: int = 1
+
+
+@dataclass(frozen=True)
 class AutopilotOptions:
     """Identity and bookkeeping of the mock (the protocol-level options are :class:`MockAutopilot` arguments)."""
 
@@ -78,9 +92,11 @@ class AutopilotOptions:
     drift: DeadReckoningDrift = field(default_factory=DeadReckoningDrift)
     truth_every_n_steps: int = 1  # decimation of the truth record
     # a ground station recording the tlog is on the link from the start (as MAVProxy logging a flight):
-    # named values flow without waiting to hear from a companion, at the rates of ``stream_rates``
+    # named values flow without waiting to hear from a companion, at the rates of ``stream_rates`` (what a GCS
+    # asks for: streams.gcs_request_rates(), which ``vdm-aero sitl --gcs-recording`` passes)
     gcs_recording: bool = False
     faults: FaultSchedule | None = None  # scripted link and sensor faults (sim/sitl/faults.py)
+    second_sensors: SecondSensors = field(default_factory=SecondSensors)
 
 
 class RunSummary(TypedDict):
@@ -123,6 +139,30 @@ class _DeadReckoning:
             self.error_rate_ned_m_s = (decayed - self.error_ned_m) / dt_s
             self.error_ned_m = decayed
         self._in_outage = outage
+
+
+class _SecondSensors:
+    """Draws the second IMU's and barometer's samples (:class:`SecondSensors`), the IMU's noise in blocks."""
+
+    BLOCK = 4096
+
+    def __init__(self, cfg: SecondSensors) -> None:
+        self._cfg = cfg
+        self._rng = np.random.default_rng(cfg.seed)
+        self._imu_sigma = np.array([cfg.accel_sigma_m_s2] * 3 + [cfg.gyro_sigma_rad_s] * 3)
+        self._noise = np.empty((0, 6))
+        self._i = 0
+
+    def imu(self, first: ImuSample) -> ImuSample:
+        if self._i >= len(self._noise):
+            self._noise, self._i = self._rng.standard_normal((self.BLOCK, 6)) * self._imu_sigma, 0
+        n = self._noise[self._i]
+        self._i += 1
+        return replace(first, accel_b_m_s2=first.accel_b_m_s2 + n[:3], gyro_b_rad_s=first.gyro_b_rad_s + n[3:])
+
+    def baro(self, first: BaroSample) -> BaroSample:
+        noise = self._cfg.baro_sigma_pa * float(self._rng.standard_normal())
+        return replace(first, pressure_pa=first.pressure_pa + noise)
 
 
 class MockAutopilot:
@@ -174,6 +214,7 @@ class MockAutopilot:
         self._frame = LocalFrame(*home)
         self._state = SensorState(home)
         self._drift = _DeadReckoning(self._options.drift)
+        self._second = _SecondSensors(self._options.second_sensors)
         self._stop = threading.Event()
         self._lock = threading.Lock()
         self._gps_inputs: list[GpsInputRecord] = []
@@ -317,6 +358,8 @@ class MockAutopilot:
         st.gnss_outage = tick.gnss_outage
         # samples hold until replaced (sensors run at their own rates)
         st.imu = tick.imu or st.imu
+        if tick.imu is not None:
+            st.imu2 = self._second.imu(tick.imu)
         # a fix lost is gone: after an outage GPS_RAW_INT waits for the receiver's next fix (ArduPilot's driver
         # does not report the last pre-outage fix again as if it were new)
         st.gnss = None if tick.gnss_outage else (tick.gnss or st.gnss)
@@ -327,6 +370,8 @@ class MockAutopilot:
             # last_fix_time_ms; PX4 its sensor_gps timestamp), not the receiver's time of validity
             st.gnss = replace(st.gnss, t_s=truth.t_s)
         st.baro = tick.baro or st.baro
+        if tick.baro is not None:
+            st.baro2 = self._second.baro(tick.baro)
         st.mag = tick.mag or st.mag
         st.airspeed = tick.airspeed or st.airspeed
         st.servos = tick.servos or st.servos
@@ -341,6 +386,9 @@ class MockAutopilot:
             pos_ned_m=truth.pos_ned_m + err,
             v_ned_m_s=truth.v_ned_m_s + self._drift.error_rate_ned_m_s,
             error_ned_m=err.copy(),
+            q_nb=truth.q_nb,
+            omega_b_rad_s=truth.omega_b_rad_s,
+            airspeed_m_s=truth.airspeed_m_s,
         )
         if self._recorder is not None:
             self._recorder.add_truth(truth, gnss_outage=tick.gnss_outage, estimate_error_ned_m=err)

@@ -7,7 +7,8 @@ the ``to_*`` helpers, and nowhere else.
 Rates follow ArduPilot's ``SRx_`` stream groups (every group defaults to 1 Hz in ArduPilot's
 ``GCS_MAVLINK::var_info``); messages in no group (HIGHRES_IMU, SCALED_IMU, ATTITUDE_QUATERNION,
 HOME_POSITION, AUTOPILOT_VERSION) are off until requested with ``MAV_CMD_SET_MESSAGE_INTERVAL`` or
-``MAV_CMD_REQUEST_MESSAGE``, as on ArduPlane.
+``MAV_CMD_REQUEST_MESSAGE``, as on ArduPlane. :func:`gcs_request_rates` is what a recording ground station
+asks for on top (every group at :data:`GCS_REQUEST_HZ`).
 """
 
 from __future__ import annotations
@@ -69,17 +70,26 @@ class MessageSpec:
 
 
 GROUP_DEFAULT_HZ = 1.0  # ArduPilot's default for every SRx_ group
-# The messages the mock streams, with their ArduPilot group and default rate.
+# Sent only when their group is asked for (REQUEST_DATA_STREAM, a group override, gcs_request_rates()), though
+# ArduPilot SITL sends them in their group from boot: the mock's boot set stays what it was before they existed,
+# so its tlogs carry no truth (SIMSTATE would become a replay's reference) and one barometer and IMU stream.
+GROUP_ON_REQUEST_HZ = 0.0
+# The messages the mock streams, with their ArduPilot group and default rate. The groups are ArduPlane's
+# GCS_Mavlink.cpp STREAM_*_msgs tables: RAW_SENSORS = RAW_IMU, SCALED_IMU2/3, SCALED_PRESSURE/2/3; EXTRA1 =
+# ATTITUDE, SIMSTATE, AHRS2, RPM, AOA_SSA, …; EXTRA2 = VFR_HUD; EXTRA3 = AHRS, WIND, SYSTEM_TIME, …
 MESSAGE_TABLE: tuple[MessageSpec, ...] = (
     MessageSpec("HEARTBEAT", None, 1.0),
     MessageSpec("RAW_IMU", Stream.RAW_SENS, GROUP_DEFAULT_HZ),
+    MessageSpec("SCALED_IMU2", Stream.RAW_SENS, GROUP_ON_REQUEST_HZ),
     MessageSpec("SCALED_PRESSURE", Stream.RAW_SENS, GROUP_DEFAULT_HZ),
+    MessageSpec("SCALED_PRESSURE2", Stream.RAW_SENS, GROUP_ON_REQUEST_HZ),
     MessageSpec("SYS_STATUS", Stream.EXT_STAT, GROUP_DEFAULT_HZ),
     MessageSpec("GPS_RAW_INT", Stream.EXT_STAT, GROUP_DEFAULT_HZ),
     MessageSpec("SERVO_OUTPUT_RAW", Stream.RC_CHAN, GROUP_DEFAULT_HZ),
     MessageSpec("GLOBAL_POSITION_INT", Stream.POSITION, GROUP_DEFAULT_HZ),
     MessageSpec("LOCAL_POSITION_NED", Stream.POSITION, GROUP_DEFAULT_HZ),
     MessageSpec("ATTITUDE", Stream.EXTRA1, GROUP_DEFAULT_HZ),
+    MessageSpec("SIMSTATE", Stream.EXTRA1, GROUP_ON_REQUEST_HZ),
     MessageSpec("AOA_SSA", Stream.EXTRA1, GROUP_DEFAULT_HZ),
     MessageSpec("VFR_HUD", Stream.EXTRA2, GROUP_DEFAULT_HZ),
     MessageSpec("SYSTEM_TIME", Stream.EXTRA3, GROUP_DEFAULT_HZ),
@@ -90,6 +100,24 @@ MESSAGE_TABLE: tuple[MessageSpec, ...] = (
     MessageSpec("HOME_POSITION", None, 0.0),
     MessageSpec("AUTOPILOT_VERSION", None, 0.0),
 )
+
+
+# What a ground station recording the flight asks for: every SRx_ group at 4 Hz.
+# * ArduPilot's own defaults (ArduPlane/GCS_Mavlink.cpp, GCS_MAVLINK_Parameters::var_info, "default stream rates
+#   to 1Hz"; the SRn_RAW_SENS … SRn_EXTRA3 parameter docs) are 1 Hz per group: what the vehicle sends to nobody.
+# * A GCS overrides them on connecting. In the ArduPlane SITL tlog shared/data/logs/arduplane-sitl-gcs.tlog
+#   (185 s, read with pymavlink's mavutil, rates over time_boot_ms/time_usec) the GCS (sysid 255) sends
+#   REQUEST_DATA_STREAM(req_stream_id 0 = MAV_DATA_STREAM_ALL, req_message_rate 4, start) every 15 s (MAVProxy's
+#   default `streamrate` 4), and RAW_IMU, SCALED_IMU2, SCALED_PRESSURE, SCALED_PRESSURE2 arrive at 4.17 Hz,
+#   GPS_RAW_INT 3.95, SERVO_OUTPUT_RAW 3.39, ATTITUDE 3.26, VFR_HUD 3.04 Hz. Every group was asked for at 4 Hz; the
+#   shortfalls are ArduPilot's stream scheduler deferring messages under load, which the mock does not model.
+GCS_REQUEST_HZ = 4.0
+
+
+def gcs_request_rates(hz: float = GCS_REQUEST_HZ) -> dict[str, float]:
+    """The overrides (for :func:`default_rates`) of a ground station that asks for every group at ``hz``, as
+    REQUEST_DATA_STREAM(MAV_DATA_STREAM_ALL, hz) does (HEARTBEAT and messages in no group keep their rates)."""
+    return {group: hz for group in Stream.__members__}
 
 
 def message_spec(name: str) -> MessageSpec | None:
@@ -244,7 +272,10 @@ def _clamp(v: int, lo: int, hi: int) -> int:
 # ------------------------------------------------------------------------------------------ encoders
 @dataclass(frozen=True)
 class NavEstimate:
-    """The autopilot's own navigation solution (its EKF): truth, plus the dead-reckoning error in outages."""
+    """The autopilot's own navigation solution (its EKF): truth, plus the dead-reckoning error in outages.
+
+    What GLOBAL_POSITION_INT, LOCAL_POSITION_NED, ATTITUDE, ATTITUDE_QUATERNION and VFR_HUD report (the truth is
+    SIMSTATE's). The mock models no attitude or airspeed estimation error: those are the truth's."""
 
     lat_deg: float
     lon_deg: float
@@ -252,6 +283,9 @@ class NavEstimate:
     pos_ned_m: F64Array
     v_ned_m_s: F64Array
     error_ned_m: F64Array
+    q_nb: F64Array  # attitude body → NED, scalar first
+    omega_b_rad_s: F64Array  # body rates (ArduPilot: AHRS get_gyro(), the bias-corrected gyro)
+    airspeed_m_s: float  # AHRS airspeed_estimate (VFR_HUD's without an airspeed sensor)
 
 
 class SensorState:
@@ -262,8 +296,10 @@ class SensorState:
         self.truth: VehicleTruth | None = None
         self.estimate: NavEstimate | None = None
         self.imu: ImuSample | None = None
+        self.imu2: ImuSample | None = None  # the second IMU (SCALED_IMU2)
         self.gnss: GnssSample | None = None
         self.baro: BaroSample | None = None
+        self.baro2: BaroSample | None = None  # the second barometer (SCALED_PRESSURE2)
         self.mag: MagSample | None = None
         self.airspeed: AirspeedSample | None = None
         self.servos: ServoSample | None = None
@@ -287,14 +323,17 @@ class TelemetryEncoder:
             "HEARTBEAT": self.heartbeat,
             "RAW_IMU": self.raw_imu,
             "SCALED_IMU": self.scaled_imu,
+            "SCALED_IMU2": self.scaled_imu2,
             "HIGHRES_IMU": self.highres_imu,
             "SCALED_PRESSURE": self.scaled_pressure,
+            "SCALED_PRESSURE2": self.scaled_pressure2,
             "SYS_STATUS": self.sys_status,
             "GPS_RAW_INT": self.gps_raw_int,
             "SERVO_OUTPUT_RAW": self.servo_output_raw,
             "GLOBAL_POSITION_INT": self.global_position_int,
             "LOCAL_POSITION_NED": self.local_position_ned,
             "ATTITUDE": self.attitude,
+            "SIMSTATE": self.simstate,
             "ATTITUDE_QUATERNION": self.attitude_quaternion,
             "AOA_SSA": self.aoa_ssa,
             "VFR_HUD": self.vfr_hud,
@@ -325,28 +364,38 @@ class TelemetryEncoder:
             3,
         )
 
-    def _imu_ints(self, state: SensorState) -> list[int] | None:
-        if state.imu is None:
-            return None
-        acc, gyro = state.imu.accel_b_m_s2, state.imu.gyro_b_rad_s
-        mag = state.mag.field_b_t if state.mag is not None else np.zeros(3)
+    @staticmethod
+    def _imu_ints(imu: ImuSample, mag: MagSample | None) -> list[int]:
+        """x/y/z acc [mG], gyro [mrad/s], mag [mgauss] (0 without that compass, as ArduPilot sends)."""
+        field = mag.field_b_t if mag is not None else np.zeros(3)
         return [
-            *(to_mg(float(v)) for v in acc),
-            *(to_mrad_s(float(v)) for v in gyro),
-            *(to_mgauss(float(v)) for v in mag),
+            *(to_mg(float(v)) for v in imu.accel_b_m_s2),
+            *(to_mrad_s(float(v)) for v in imu.gyro_b_rad_s),
+            *(to_mgauss(float(v)) for v in field),
         ]
 
     def raw_imu(self, state: SensorState, t_s: float) -> MavlinkMessage | None:
-        ints = self._imu_ints(state)
-        if ints is None or state.imu is None:
+        """IMU 1, already scaled (ArduPilot's RAW_IMU is SCALED_IMU's units), ``time_usec`` µs since boot."""
+        imu = state.imu
+        if imu is None:
             return None
-        return self._mav.raw_imu_encode(to_time_usec(state.imu.t_s), *ints, 0, to_cdegc(state.imu.temperature_c))
+        ints = self._imu_ints(imu, state.mag)
+        return self._mav.raw_imu_encode(to_time_usec(imu.t_s), *ints, 0, to_cdegc(imu.temperature_c))
 
     def scaled_imu(self, state: SensorState, t_s: float) -> MavlinkMessage | None:
-        ints = self._imu_ints(state)
-        if ints is None or state.imu is None:
+        imu = state.imu
+        if imu is None:
             return None
-        return self._mav.scaled_imu_encode(to_time_boot_ms(state.imu.t_s), *ints, to_cdegc(state.imu.temperature_c))
+        ints = self._imu_ints(imu, state.mag)
+        return self._mav.scaled_imu_encode(to_time_boot_ms(imu.t_s), *ints, to_cdegc(imu.temperature_c))
+
+    def scaled_imu2(self, state: SensorState, t_s: float) -> MavlinkMessage | None:
+        """IMU 2 with compass 2's field: the world has one magnetometer, so 0 (ArduPilot's send_scaled_imu)."""
+        imu = state.imu2
+        if imu is None:
+            return None
+        ints = self._imu_ints(imu, None)
+        return self._mav.scaled_imu2_encode(to_time_boot_ms(imu.t_s), *ints, to_cdegc(imu.temperature_c))
 
     def highres_imu(self, state: SensorState, t_s: float) -> MavlinkMessage | None:
         imu = state.imu
@@ -379,16 +428,26 @@ class TelemetryEncoder:
             0,
         )
 
-    def scaled_pressure(self, state: SensorState, t_s: float) -> MavlinkMessage | None:
-        baro = state.baro
-        if baro is None:
-            return None
+    @staticmethod
+    def _pressure_fields(baro: BaroSample, airspeed: AirspeedSample | None) -> tuple[int, float, float, int, int]:
+        """Barometer n and airspeed sensor n, as ArduPilot's send_scaled_pressure_instance: time_boot_ms,
+        press_abs and press_diff [hPa] (0 without that airspeed sensor), temperature and the airspeed sensor's
+        [cdegC] (0 = unknown)."""
         diff_hpa, diff_temp = 0.0, 0
-        if state.airspeed is not None:
-            diff_hpa, diff_temp = to_hpa(state.airspeed.dp_pa), to_cdegc(state.airspeed.temperature_c)
-        return self._mav.scaled_pressure_encode(
-            to_time_boot_ms(baro.t_s), to_hpa(baro.pressure_pa), diff_hpa, to_cdegc(baro.temperature_c), diff_temp
-        )
+        if airspeed is not None:
+            diff_hpa, diff_temp = to_hpa(airspeed.dp_pa), to_cdegc(airspeed.temperature_c)
+        return to_time_boot_ms(baro.t_s), to_hpa(baro.pressure_pa), diff_hpa, to_cdegc(baro.temperature_c), diff_temp
+
+    def scaled_pressure(self, state: SensorState, t_s: float) -> MavlinkMessage | None:
+        if state.baro is None:
+            return None
+        return self._mav.scaled_pressure_encode(*self._pressure_fields(state.baro, state.airspeed))
+
+    def scaled_pressure2(self, state: SensorState, t_s: float) -> MavlinkMessage | None:
+        """Barometer 2 and airspeed sensor 2 (recent ArduPilot): the world has one airspeed sensor, so Δp 0."""
+        if state.baro2 is None:
+            return None
+        return self._mav.scaled_pressure2_encode(*self._pressure_fields(state.baro2, None))
 
     def sys_status(self, state: SensorState, t_s: float) -> MavlinkMessage:
         present = (
@@ -450,10 +509,10 @@ class TelemetryEncoder:
         return self._mav.servo_output_raw_encode(to_time_usec(s.t_s) & 0xFFFFFFFF, 0, *pwm)
 
     def global_position_int(self, state: SensorState, t_s: float) -> MavlinkMessage | None:
-        est, truth = state.estimate, state.truth
-        if est is None or truth is None:
+        est = state.estimate
+        if est is None:
             return None
-        yaw = euler_from_quat(truth.q_nb)[2]
+        yaw = euler_from_quat(est.q_nb)[2]
         return self._mav.global_position_int_encode(
             to_time_boot_ms(t_s),
             to_deg_e7(est.lat_deg),
@@ -473,19 +532,35 @@ class TelemetryEncoder:
         )
 
     def attitude(self, state: SensorState, t_s: float) -> MavlinkMessage | None:
+        """The autopilot's estimate: ZYX Euler angles [rad] and body rates [rad/s]."""
+        est = state.estimate
+        if est is None:
+            return None
+        return self._mav.attitude_encode(
+            to_time_boot_ms(t_s), *euler_from_quat(est.q_nb), *(float(v) for v in est.omega_b_rad_s)
+        )
+
+    def simstate(self, state: SensorState, t_s: float) -> MavlinkMessage | None:
+        """The simulator's truth, as ArduPilot SITL's SIM::simstate_send: roll, pitch, yaw (−π..π) [rad], the
+        accelerometer's ideal reading (specific force, body) [m/s²], body rates [rad/s], lat/lng [degE7]. No
+        time field: a reader stamps it with the tlog's."""
         truth = state.truth
         if truth is None:
             return None
-        return self._mav.attitude_encode(
-            to_time_boot_ms(t_s), *euler_from_quat(truth.q_nb), *(float(v) for v in truth.omega_b_rad_s)
+        return self._mav.simstate_encode(
+            *euler_from_quat(truth.q_nb),
+            *(float(v) for v in truth.specific_force_b_m_s2),
+            *(float(v) for v in truth.omega_b_rad_s),
+            to_deg_e7(truth.lat_deg),
+            to_deg_e7(truth.lon_deg),
         )
 
     def attitude_quaternion(self, state: SensorState, t_s: float) -> MavlinkMessage | None:
-        truth = state.truth
-        if truth is None:
+        est = state.estimate
+        if est is None:
             return None
         return self._mav.attitude_quaternion_encode(
-            to_time_boot_ms(t_s), *(float(v) for v in truth.q_nb), *(float(v) for v in truth.omega_b_rad_s)
+            to_time_boot_ms(t_s), *(float(v) for v in est.q_nb), *(float(v) for v in est.omega_b_rad_s)
         )
 
     def aoa_ssa(self, state: SensorState, t_s: float) -> MavlinkMessage | None:
@@ -495,11 +570,13 @@ class TelemetryEncoder:
         return self._mav.aoa_ssa_encode(to_time_usec(t_s), math.degrees(truth.alpha_rad), math.degrees(truth.beta_rad))
 
     def vfr_hud(self, state: SensorState, t_s: float) -> MavlinkMessage | None:
+        """Airspeed (the airspeed sensor's, else the estimate's, as ArduPlane's vfr_hud_airspeed), ground speed,
+        heading [deg], throttle [%], altitude AMSL and climb rate of the estimate."""
         est, truth = state.estimate, state.truth
         if est is None or truth is None:
             return None
-        airspeed = equivalent_airspeed_m_s(state.airspeed.dp_pa) if state.airspeed is not None else truth.airspeed_m_s
-        yaw = euler_from_quat(truth.q_nb)[2]
+        airspeed = equivalent_airspeed_m_s(state.airspeed.dp_pa) if state.airspeed is not None else est.airspeed_m_s
+        yaw = euler_from_quat(est.q_nb)[2]
         return self._mav.vfr_hud_encode(
             airspeed,
             math.hypot(float(est.v_ned_m_s[0]), float(est.v_ned_m_s[1])),

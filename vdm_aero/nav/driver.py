@@ -91,6 +91,12 @@ class NavDriver:
         for f in self.filters.values():
             f.mag(t_s, self._mag_b_ut)
 
+    def ap_attitude(self, t_s: float, q_nb: F64Array) -> None:
+        """The autopilot's own attitude estimate (body FRD → NED quaternion)."""
+        self.t_s = t_s
+        for f in self.filters.values():
+            f.ap_attitude(t_s, q_nb)
+
     def pitot(self, t_s: float, dp_pa: float, temperature_c: float = math.nan) -> None:
         """Pitot differential pressure [Pa], and the airspeed sensor's temperature [°C] (NaN: not reported),
         the air density's temperature while it reports."""

@@ -39,6 +39,7 @@ from vdm_aero.nav.engine import EkfEngine, UpdateResult
 from vdm_aero.nav.ins import InsProcess, ProcessNoise
 from vdm_aero.nav.mag_deviation import MagDeviation
 from vdm_aero.nav.measurements import (
+    AutopilotAttitude,
     BaroAltitude,
     ClassicForce,
     ForceContext,
@@ -56,7 +57,18 @@ from vdm_aero.nav.state import AERO_PARAMS, AERO_PRIOR, AERO_SLOT, IDX, N_ERR, N
 from vdm_aero.rotation import dcm_from_quat, quat_from_euler
 from vdm_aero.vehicle import VehicleDescription
 
-__all__ = ["ABLATIONS", "GATE_CHI2", "IMU_DATASHEETS", "MODES", "ModeSpec", "NavConfig", "NavFilter", "mode_spec"]
+__all__ = [
+    "ABLATIONS",
+    "AP_ATTITUDE_SIGMA_RAD",
+    "GATE_CHI2",
+    "IMU_DATASHEETS",
+    "MODES",
+    "SLOW_IMU_HZ",
+    "ModeSpec",
+    "NavConfig",
+    "NavFilter",
+    "mode_spec",
+]
 
 GATE_CHI2: Final = {1: 15.14, 2: 18.42, 3: 21.11, 6: 27.86}
 """χ² 99.99 % points by measurement dimension (scipy.stats.chi2.ppf(0.9999, k))."""
@@ -191,6 +203,14 @@ class NavConfig:
     force_sigma_m_s2: tuple[float, float, float] = (0.4, 0.4, 1.2)
     classic_force_sigma_m_s2: tuple[float, float, float] = (0.6, 0.6, 2.0)
     airdata_sigma_floor: tuple[float, float, float] = (0.5, 0.02, 0.02)  # turbulence and lag: V, α, β
+    # the autopilot's attitude, fused where the IMU is logged too slowly to integrate (None: never): body-axis
+    # 1σ. No autopilot states its attitude accuracy; an EKF aided by GNSS holds roll and pitch to ~1° and the
+    # heading to a few degrees in flight: 2°, 2°, 5°, and the estimate's errors are correlated in time, which a
+    # white σ at 10 Hz overweights, so these are not tighter
+    ap_attitude_sigma_rad: tuple[float, float, float] | None = None
+    # the IMU is a decimated record of point samples (a ground station's 4 Hz RAW_IMU), each held over its
+    # interval: the rate and specific force change in between, unseen (hold_noise below)
+    imu_point_samples: bool = False
     # turn-on bias priors: 1.2× the IMU part's board-level initial tolerance (IMU_DATASHEETS)
     gyro_bias_sigma_rad_s: float = math.radians(0.6)
     accel_bias_sigma_m_s2: float = 0.25
@@ -203,6 +223,24 @@ class NavConfig:
         gyro, accel = IMU_DATASHEETS[part]
         return cls(gyro_bias_sigma_rad_s=1.2 * gyro, accel_bias_sigma_m_s2=1.2 * accel, **kw)
 
+
+# what a sample held over its interval misses of a manoeuvring small aircraft: angular acceleration and jerk
+# (assumed 1σ: roll-ins of a 2 m aircraft reach several rad/s²; load-factor changes tens of m/s³)
+HOLD_ANGULAR_ACCEL_RAD_S2: Final = 2.0
+HOLD_JERK_M_S3: Final = 20.0
+
+
+def _hold_noise(dt_s: float) -> F64Array:
+    """Process noise [rad², (m/s)²] of one step integrated from a single held sample: the unseen change over the
+    step, ½·(rate of change)·dt² in attitude and velocity."""
+    q = np.zeros((N_ERR, N_ERR))
+    q[IDX["theta"], IDX["theta"]] = np.eye(3) * (0.5 * HOLD_ANGULAR_ACCEL_RAD_S2 * dt_s**2) ** 2
+    q[IDX["v"], IDX["v"]] = np.eye(3) * (0.5 * HOLD_JERK_M_S3 * dt_s**2) ** 2
+    return q
+
+
+AP_ATTITUDE_SIGMA_RAD: Final = (math.radians(2.0), math.radians(2.0), math.radians(5.0))  # NavConfig's note
+SLOW_IMU_HZ: Final = 20.0  # an IMU logged slower than this is not integrated alone: the autopilot's attitude helps
 
 IMU_DATASHEETS: Final = {
     # part: (gyro zero-rate offset [rad/s], accel zero-g offset [m/s²]) initial tolerances, board level
@@ -452,6 +490,8 @@ class NavFilter:
         x = self.x
         phi = self.process.transition(x, inc)
         qd = self.process.noise(x, inc)
+        if self.config.imu_point_samples:
+            qd = qd + _hold_noise(inc.dt_s)
         v0 = x.v_ned.copy() if self.wind_change is not None else None
         self.process.propagate_inplace(x, inc)
         if self.wind_change is not None and v0 is not None:
@@ -728,6 +768,14 @@ class NavFilter:
                 dev.observe(m_b, h_b, self.inputs.throttle)
             m_b = m_b - dev.correction_ut(h_b, self.inputs.throttle)
         self._fuse(Measurement(t_s, m_b, MagField(self.config.mag_field_ned_ut, self.config.mag_sigma_ut)))
+
+    def ap_attitude(self, t_s: float, q_nb: F64Array) -> None:
+        """The autopilot's own attitude estimate (body FRD → NED quaternion), fused when the config asks for it
+        (:attr:`NavConfig.ap_attitude_sigma_rad`: a log whose IMU is too slow to integrate)."""
+        sigma = self.config.ap_attitude_sigma_rad
+        if self.x is None or sigma is None or not self._due("ap_attitude", t_s):
+            return
+        self._fuse(Measurement(t_s, np.zeros(3), AutopilotAttitude(np.asarray(q_nb, float), np.asarray(sigma))))
 
     def servo(self, t_s: float, controls_rad: F64Array, throttle: float) -> None:
         self.inputs.controls_rad = np.asarray(controls_rad, float)

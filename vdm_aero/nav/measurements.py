@@ -19,10 +19,11 @@ import numpy as np
 from vdm_aero._typing import F64Array
 from vdm_aero.nav.ins import skew
 from vdm_aero.nav.state import AERO_INDEX, AERO_SLOT, IDX, N_ERR, NavState
-from vdm_aero.rotation import dcm_from_quat
+from vdm_aero.rotation import dcm_from_quat, quat_log, quat_multiply
 
 __all__ = [
     "AirKinematics",
+    "AutopilotAttitude",
     "BaroAltitude",
     "ClassicForce",
     "DerivativeModel",
@@ -219,6 +220,38 @@ class MagField:
 
     def covariance(self) -> F64Array:
         return _diag((self.sigma_ut,) * 3)
+
+
+@dataclass(frozen=True)
+class AutopilotAttitude:
+    """The autopilot's own attitude estimate as a measurement: h(x) = Log(q̂_nb⁻¹ ⊗ q_ap) [rad], the body-frame
+    rotation from the state's attitude to the autopilot's, measured as zero. Used where the IMU is logged too
+    slowly to integrate (a ground station's 4 Hz tlog): the autopilot integrated its IMU at full rate.
+
+    With q = q̂ ⊗ exp(δθ), h = Log(exp(−δθ)·exp(r)) ≈ r − J_l⁻¹(r)·δθ, so ∂h/∂δθ = −J_l⁻¹(r) (the left Jacobian's
+    inverse of SO(3), Sola et al. 2018, "A micro Lie theory", eq. 146)."""
+
+    q_ap_nb: F64Array
+    sigma_rad: F64Array  # roll, pitch, heading-axis 1σ of the autopilot's estimate
+    name: str = "ap_attitude"
+
+    def evaluate(self, x: NavState) -> F64Array:
+        q = x.q_nb
+        return quat_log(quat_multiply(np.array([q[0], -q[1], -q[2], -q[3]]), self.q_ap_nb))
+
+    def jacobian(self, x: NavState) -> F64Array:
+        r = self.evaluate(x)
+        th = float(np.linalg.norm(r))
+        k = skew(r)
+        jl_inv = np.eye(3) - 0.5 * k
+        if th > 1e-6:
+            jl_inv += (1.0 / th**2 - (1.0 + math.cos(th)) / (2.0 * th * math.sin(th))) * (k @ k)
+        h = np.zeros((3, N_ERR))
+        h[:, IDX["theta"]] = -jl_inv
+        return h
+
+    def covariance(self) -> F64Array:
+        return np.diag(np.square(self.sigma_rad))
 
 
 # -------------------------------------------------------------------------------------------- air data

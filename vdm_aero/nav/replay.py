@@ -5,6 +5,11 @@ The filters run on the :class:`~vdm_aero.nav.stream.NavStream` of the log throug
 :class:`~vdm_aero.nav.stream.LogRunner`, the path the drift benchmark and the service share. The solution
 is recorded at :data:`RECORD_HZ` (the benchmark's rate), so errors at an outage's end are read at the same
 epochs in both.
+
+Where the log holds the autopilot's own position estimate (what the autopilot flew on), it is judged against
+the same reference beside the modes, outside the outages only (:func:`compare_autopilot`): there it had GNSS,
+as the replayed filters had; inside them it still had GNSS (the outages are cut out of the log afterwards),
+so it is no comparison for the modes' dead reckoning there.
 """
 
 from __future__ import annotations
@@ -19,17 +24,19 @@ import numpy as np
 from vdm_aero._typing import F64Array
 from vdm_aero.flightlog import SensorLog
 from vdm_aero.geodesy import LocalFrame
-from vdm_aero.nav.filter import MODES, NavConfig, NavFilter, mode_spec
+from vdm_aero.nav.filter import AP_ATTITUDE_SIGMA_RAD, MODES, SLOW_IMU_HZ, NavConfig, NavFilter, mode_spec
 from vdm_aero.nav.models import NavModels
 from vdm_aero.nav.ports_frontend import PortFrontEnd
 from vdm_aero.nav.stream import LogRunner, NavStream, SolutionRecorder
 from vdm_aero.rotation import euler_from_quat
 from vdm_aero.vehicle import VehicleDescription
 
-__all__ = ["RECORD_HZ", "Reference", "ReplayRun", "available_modes", "merge_runs", "replay_log", "score"]
+__all__ = ["RECORD_HZ", "AutopilotEstimate", "Reference", "ReplayRun", "autopilot_estimate", "available_modes",
+           "compare_autopilot", "merge_runs", "replay_log", "score"]  # fmt: skip
 
 RECORD_HZ = 5.0
 MAX_FILTER_RATE_HZ = 50.0
+MAX_INTERP_GAP_S = 1.0  # a track (reference, autopilot) is not interpolated across a gap longer than this
 PORT_RANGE_PA = 500.0  # the port transducers' full scale and noise: deploy/config.yaml's defaults (SDP31)
 PORT_NOISE_PA = 0.2
 _PORT_MODES = frozenset(m for m, s in MODES.items() if s.ports_airdata or s.force in ("deim", "deim-nn"))
@@ -42,6 +49,27 @@ class Reference:
     source: str  # "truth: ..." or "the log's GNSS"
     t_s: F64Array
     p_ned_m: F64Array  # (N, 3); D NaN when the reference has no altitude (SIMSTATE)
+
+
+@dataclass(frozen=True, eq=False)
+class AutopilotEstimate:
+    """The autopilot's own position estimate in the replay's local frame (NED from the first fix) [m]."""
+
+    source: str  # the message it came from: "GLOBAL_POSITION_INT", "POS", "vehicle_global_position", ...
+    t_s: F64Array
+    p_ned_m: F64Array  # (N, 3)
+
+
+def autopilot_estimate(log: SensorLog, origin: tuple[float, float, float], source: str
+                       ) -> AutopilotEstimate | None:  # fmt: skip
+    """The log's ``ap_pos`` stream in the local frame at ``origin``; None when the log has none. A row without
+    altitude (NaN) is put at the origin's: only its horizontal position is compared."""
+    t = log.arrays.get("ap_pos_t_s")
+    if t is None or not len(t):
+        return None
+    alt = np.where(np.isfinite(log["ap_pos_alt_m"]), log["ap_pos_alt_m"], origin[2])
+    p = np.asarray(LocalFrame(*origin).to_ned(log["ap_pos_lat_deg"], log["ap_pos_lon_deg"], alt)).reshape(-1, 3)
+    return AutopilotEstimate(source, np.asarray(t, dtype=np.float64), p)
 
 
 @dataclass
@@ -113,8 +141,13 @@ def replay_log(
     rate = min(MAX_FILTER_RATE_HZ, imu_hz)
     # a fix arrives its receiver latency after its time of validity: the reader's, when it had to assume one
     latency = float(log.meta.get("gnss_latency_s", NavConfig.gnss_latency_s))
+    # an IMU logged too slowly to integrate (a ground station's 4-10 Hz): the autopilot's own attitude, from its
+    # IMU at full rate, is fused as a measurement where the log has it (the report says so)
+    slow_imu = imu_hz < SLOW_IMU_HZ and len(log.arrays.get("ap_att_t_s", ())) > 0
     cfg = NavConfig(vehicle=vehicle, origin_alt_m=origin[2], mag_field_ned_ut=np.asarray(mag_field_ned_ut, float),
-                    filter_rate_hz=rate, aiding_rate_hz=min(10.0, rate), gnss_latency_s=latency)  # fmt: skip
+                    filter_rate_hz=rate, aiding_rate_hz=min(10.0, rate), gnss_latency_s=latency,
+                    ap_attitude_sigma_rad=AP_ATTITUDE_SIGMA_RAD if slow_imu else None,
+                    imu_point_samples=imu_hz < SLOW_IMU_HZ)  # fmt: skip
     stream = NavStream.from_log(log, vehicle, frame, filter_rate_hz=rate, gnss_latency_s=cfg.gnss_latency_s)
     fe = None
     if models is not None and any(m in _PORT_MODES for m in modes):
@@ -193,20 +226,60 @@ def score(run: ReplayRun, ref: Reference) -> dict[str, Any]:
     return out
 
 
+def compare_autopilot(run: ReplayRun, ref: Reference, ap: AutopilotEstimate) -> dict[str, Any]:
+    """The autopilot's horizontal error and each mode's against ``ref`` outside the outages, at the same epochs:
+    the record epochs every mode has, outside every outage, where the reference, the autopilot's estimate and
+    every mode's error exist. Per row the median, 95th percentile and largest error [m]; ``epochs`` and
+    ``seconds`` say how much was compared (none: the statistics are None)."""
+    hist = {m: run.history(m) for m in run.modes}
+    t = hist[run.modes[0]]["t_s"] if run.modes else np.zeros(0)
+    for h in hist.values():
+        t = np.intersect1d(t, h["t_s"])  # one recorder for every mode: the same epochs once each is running
+    keep = np.ones(len(t), dtype=bool)
+    for a, b in run.outages:
+        keep &= ~((t >= a) & (t < b))
+    ref_ne = _track_at(t, ref.t_s, ref.p_ned_m)
+    errors = {"autopilot": np.hypot(*(_track_at(t, ap.t_s, ap.p_ned_m) - ref_ne).T)}
+    for m, h in hist.items():
+        e = _error_h(h, ref)
+        errors[m] = e[np.searchsorted(h["t_s"], t)] if len(t) else np.zeros(0)
+    for e in errors.values():
+        keep &= np.isfinite(e)
+    n = int(keep.sum())
+
+    def stats(e: F64Array) -> dict[str, float] | None:
+        if not n:
+            return None
+        x = e[keep]
+        return {"median_error_m": float(np.median(x)), "p95_error_m": float(np.percentile(x, 95.0)),
+                "max_error_m": float(x.max())}  # fmt: skip
+
+    return {"source": ap.source, "reference": ref.source, "epochs": n, "seconds": n / RECORD_HZ,
+            "autopilot": stats(errors.pop("autopilot")), "modes": {m: stats(e) for m, e in errors.items()}}  # fmt: skip
+
+
+def _track_at(t: F64Array, track_t: F64Array, track_p: F64Array) -> F64Array:
+    """A track's (north, east) [m] interpolated to ``t`` (K, 2): NaN where it has no sample within
+    :data:`MAX_INTERP_GAP_S`, outside its span, and inside a longer gap farther than half that from either end
+    (its gaps are not bridged)."""
+    out = np.full((len(t), 2), math.nan)
+    if not len(t) or len(track_t) < 2:
+        return out
+    for j in (0, 1):
+        out[:, j] = np.interp(t, track_t, track_p[:, j])
+    k = np.clip(np.searchsorted(track_t, t), 1, len(track_t) - 1)
+    near = np.minimum(np.abs(track_t[k] - t), np.abs(track_t[k - 1] - t))
+    gap = (track_t[k] - track_t[k - 1]) > MAX_INTERP_GAP_S
+    far = (near > MAX_INTERP_GAP_S) | (gap & (near > 0.5 * MAX_INTERP_GAP_S))
+    out[far | (t < track_t[0]) | (t > track_t[-1])] = math.nan
+    return out
+
+
 def _error_h(h: dict[str, F64Array], ref: Reference) -> F64Array:
     """Horizontal error of the recorded solution against the reference, interpolated to the solution's
     epochs (NaN where the reference has no sample within a second: its gaps are not bridged)."""
-    t = h["t_s"]
-    if not len(t) or len(ref.t_s) < 2:
-        return np.full(len(t), math.nan)
-    pn = np.interp(t, ref.t_s, ref.p_ned_m[:, 0])
-    pe = np.interp(t, ref.t_s, ref.p_ned_m[:, 1])
-    e = np.hypot(h["p_ned_m"][:, 0] - pn, h["p_ned_m"][:, 1] - pe)
-    k = np.clip(np.searchsorted(ref.t_s, t), 1, len(ref.t_s) - 1)
-    near = np.minimum(np.abs(ref.t_s[k] - t), np.abs(ref.t_s[k - 1] - t))
-    gap = (ref.t_s[k] - ref.t_s[k - 1]) > 1.0
-    e[(near > 1.0) | ((t < ref.t_s[0]) | (t > ref.t_s[-1])) | (gap & (near > 0.5))] = math.nan
-    return np.asarray(e)
+    ne = _track_at(h["t_s"], ref.t_s, ref.p_ned_m)
+    return np.asarray(np.hypot(h["p_ned_m"][:, 0] - ne[:, 0], h["p_ned_m"][:, 1] - ne[:, 1]))
 
 
 def solution_table(run: ReplayRun, frame: LocalFrame) -> tuple[list[str], list[list[Any]]]:

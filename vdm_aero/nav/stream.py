@@ -23,15 +23,14 @@ from vdm_aero.geodesy import LocalFrame
 from vdm_aero.nav.contracts import ImuIncrement
 from vdm_aero.nav.driver import NavDriver
 from vdm_aero.nav.filter import NavFilter
+from vdm_aero.nav.imu_increments import increments
 from vdm_aero.nav.ports_frontend import PortFrontEnd
 from vdm_aero.vehicle import VehicleDescription
 
 __all__ = ["LogRunner", "NavStream", "SolutionRecorder"]
 
-_IMU, _GNSS, _BARO, _MAG, _PITOT, _SERVO, _PORTS = range(7)
+_IMU, _GNSS, _BARO, _MAG, _PITOT, _SERVO, _PORTS, _ATT = range(8)
 T_TESLA_TO_UT = 1e6
-IMU_GAP_S = 0.1  # a longer pause between IMU samples is a gap (the service's ImuIntegrator uses the same)
-IMU_GAP_FACTOR = 5.0  # ... or five typical intervals, for decimated logs
 
 
 @dataclass(frozen=True, eq=False)
@@ -59,6 +58,8 @@ class NavStream:
     throttle: F64Array
     ports_t_s: F64Array
     ports_dp_pa: F64Array
+    ap_att_t_s: F64Array  # the autopilot's own attitude estimate (fused only where the config asks)
+    ap_att_q_nb: F64Array
     events: np.ndarray  # (E, 2) int64: kind, index; in time order
     event_t_s: F64Array  # (E,) the events' times [s]
 
@@ -75,21 +76,10 @@ class NavStream:
         t = log["imu_t_s"]
         if len(t) < 2:
             raise ValueError(f"{log.path}: fewer than two IMU samples")
-        # each sample holds until the next (rectangle rule, as the service's ImuIntegrator); a gap (link or
-        # logging loss) is not integrated across
-        dt_imu = float(np.median(np.diff(t)))
-        dt = np.append(np.diff(t), dt_imu)
-        dt[(dt > max(IMU_GAP_S, IMU_GAP_FACTOR * dt_imu)) | (dt <= 0.0)] = 0.0
-        k = max(round(1.0 / (filter_rate_hz * dt_imu)), 1)
-        n = (len(t) // k) * k
-        groups = n // k
-        dth = (log["imu_gyro_b_rad_s"][:n] * dt[:n, None]).reshape(groups, k, 3).sum(axis=1)
-        dv = (log["imu_accel_b_m_s2"][:n] * dt[:n, None]).reshape(groups, k, 3).sum(axis=1)
-        dt_step = dt[:n].reshape(groups, k).sum(axis=1)
-        t_end = t[k - 1 : n : k] + dt[k - 1 : n : k]
-        temp = log["imu_temperature_c"][k - 1 : n : k]
-        ok = dt_step > 0.0  # a step made only of gaps carries nothing
-        dth, dv, dt_step, t_end, temp = dth[ok], dv[ok], dt_step[ok], t_end[ok], temp[ok]
+        # the service's integrator and gap rule (vdm_aero.nav.imu_increments), sample by sample
+        t_end, dth, dv, dt_step, closed = increments(t, log["imu_gyro_b_rad_s"], log["imu_accel_b_m_s2"],
+                                                     filter_rate_hz)  # fmt: skip
+        temp = log["imu_temperature_c"][closed]
         gt = log["gnss_t_s"]
         p_ned = (
             frame.to_ned(log["gnss_lat_deg"], log["gnss_lon_deg"], log["gnss_alt_m"]) if len(gt) else np.zeros((0, 3))
@@ -118,10 +108,12 @@ class NavStream:
             throttle=np.asarray(thr),
             ports_t_s=log["ports_t_s"],
             ports_dp_pa=log["ports_dp_pa"],
+            ap_att_t_s=log.arrays.get("ap_att_t_s", np.zeros(0)),
+            ap_att_q_nb=log.arrays.get("ap_att_q_nb", np.zeros((0, 4))),
             events=np.zeros((0, 2), dtype=np.int64),
             event_t_s=np.zeros(0),
         )
-        times = [s.imu_t_s, s.gnss_t_s, s.baro_t_s, s.mag_t_s, s.pitot_t_s, s.servo_t_s, s.ports_t_s]
+        times = [s.imu_t_s, s.gnss_t_s, s.baro_t_s, s.mag_t_s, s.pitot_t_s, s.servo_t_s, s.ports_t_s, s.ap_att_t_s]
         kinds = np.concatenate([np.full(len(tt), i) for i, tt in enumerate(times)])
         idx = np.concatenate([np.arange(len(tt)) for tt in times])
         order = np.lexsort((kinds, np.concatenate(times)))
@@ -209,6 +201,8 @@ class LogRunner:
                 d.servo(t, s.controls_rad[i], float(s.throttle[i]))
             elif kind == _PORTS:
                 d.ports(t, s.ports_dp_pa[i])
+            elif kind == _ATT:
+                d.ap_attitude(t, s.ap_att_q_nb[i])
 
 
 class SolutionRecorder:
