@@ -58,7 +58,6 @@ POLL_MAX_S = 0.02
 PERIODIC_S = 0.005
 ERROR_LOG_EVERY_S = 10.0
 LATENCY_WINDOW = 20000
-AUTOPILOT_COMPONENT = mavlink2.MAV_COMP_ID_AUTOPILOT1
 RESTORE_WAIT_S = 3.0  # how long a restore waits for SYSTEM_TIME's boot instant before going without it
 
 
