@@ -163,7 +163,7 @@ def bench_replay(repeats: int) -> dict[str, Any]:
     from vdm_aero.nav.filter import MODES
     from vdm_aero.nav.models import NavModels
     from vdm_aero_cli.nav_bench import AFTER_S, OUTAGE_START_S, _flight, build_artifacts, run_filters
-    from vdm_aero_cli.replay_golden import STREAMS
+    from vdm_aero_cli.replay_golden import LOOP_RATE_HZ, STREAMS
 
     art = build_artifacts(Path("out/bench/nav-artifacts"))
     work = Path("out/bench/replay")
@@ -172,7 +172,8 @@ def bench_replay(repeats: int) -> dict[str, Any]:
     if not tlog.is_file():
         rates = [a for k, hz in STREAMS.items() for a in ("--stream-rate", f"{k}={hz:g}")]
         subprocess.run([*cli, "sitl", "--nav-scenario", "survey", "--seed", "0", "--outage-s", "60", "--ports-model",
-                        str(art.deim_dir), "--connect", "null", "--speed", "0", "--gcs-recording", *rates, "--tlog",
+                        str(art.deim_dir), "--connect", "null", "--speed", "0", "--gcs-recording", *rates,
+                        "--loop-rate-hz", f"{LOOP_RATE_HZ:g}", "--tlog",
                         str(tlog), "--truth", str(truth)], check=True, capture_output=True)  # fmt: skip
     sensors, truth_arr, meta, t_out = _flight("survey", 0, art, OUTAGE_START_S[1] + 60.0 + AFTER_S + 5.0)
     mag = ",".join(f"{v * 1e6:.4f}" for v in meta["mag_field_ned_t"])

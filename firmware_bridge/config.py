@@ -14,7 +14,7 @@ import math
 import reprlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
 import yaml
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
@@ -28,6 +28,21 @@ __all__ = ["ConfigError", "ServiceConfig", "load_config"]
 AUTOPILOTS = ("ardupilot", "px4")
 SOLUTION_OUTPUTS = {"ardupilot": ("gps_input", "none"), "px4": ("global_position_sensor", "odometry", "none")}
 PORT_SOURCES = ("named_value_float", "debug_float_array")
+# What ``streams: auto`` asks each autopilot for [Hz] (MAV_CMD_SET_MESSAGE_INTERVAL), from what each one sends:
+# * ArduPilot: RAW_IMU (in every build, already scaled; HIGHRES_IMU is built only where flash allows,
+#   AP_MAVLINK_MSG_HIGHRES_IMU_ENABLED, and its diff_pressure is not the airspeed sensor's). No stream goes out
+#   faster than the main loop, SCHED_LOOP_RATE, 50 Hz on ArduPlane unless raised (AP_Scheduler.cpp): 400 is
+#   asked for and the service takes what comes, saying so once (docs/service.md: raise the loop rate).
+#   SCALED_PRESSURE carries barometer 1 and airspeed sensor 1 (GCS_MAVLINK::send_scaled_pressure_instance).
+# * PX4: HIGHRES_IMU at its IMU integration rate (IMU_INTEG_RATE, 200 Hz); it carries the barometer and the
+#   differential pressure (fields_updated bits 9 and 10).
+# * Both: ATTITUDE, the autopilot's own, fused only when the IMU arrives too slowly to integrate (< 20 Hz).
+DEFAULT_STREAMS: Final[dict[str, dict[str, float]]] = {
+    "ardupilot": {"RAW_IMU": 400.0, "SCALED_PRESSURE": 50.0, "GPS_RAW_INT": 5.0, "SERVO_OUTPUT_RAW": 50.0,
+                  "SYSTEM_TIME": 1.0, "ATTITUDE": 10.0},
+    "px4": {"HIGHRES_IMU": 200.0, "GPS_RAW_INT": 5.0, "SERVO_OUTPUT_RAW": 50.0, "SYSTEM_TIME": 1.0,
+            "ATTITUDE": 10.0},
+}  # fmt: skip
 NAME_MAX = 10  # NAMED_VALUE_FLOAT name length
 _SHOW = reprlib.Repr()
 _SHOW.maxstring = _SHOW.maxother = _SHOW.maxlong = 60
@@ -297,13 +312,19 @@ def _read(r: _Node) -> ServiceConfig:
         noise_pa=p.num("noise_pa", 0.2, lo=1e-4, hi=1e3),
     )
     p.finish()
-    s = r.sub("streams")
-    streams = {}
-    for name in list(s.items):
-        if getattr(mavlink2, f"MAVLINK_MSG_ID_{name}", None) is None:
-            raise s.fail(name, "unknown MAVLink message")
-        streams[name] = s.num(name, lo=0.0, hi=1000.0)
-    s.finish()
+    given = r.value("streams", "auto")
+    if given == "auto":
+        streams = dict(DEFAULT_STREAMS[autopilot])
+    elif not isinstance(given, dict):
+        raise r.fail("streams", f"expected auto or a mapping of MAVLink message: rate [Hz], got {_show(given)}")
+    else:
+        s = r.sub("streams")
+        streams = {}
+        for name in list(s.items):
+            if getattr(mavlink2, f"MAVLINK_MSG_ID_{name}", None) is None:
+                raise s.fail(name, "unknown MAVLink message")
+            streams[name] = s.num(name, lo=0.0, hi=1000.0)
+        s.finish()
     o = r.sub("outputs")
     prefix = o.value("prefix", "VDM")
     if not isinstance(prefix, str) or not 0 < len(prefix) <= 4 or not prefix.isascii():

@@ -290,6 +290,10 @@ class MavlinkDecoder:
             p = units.from_highres_pressure(msg)
         except ValueError:
             return self._skip("HIGHRES_IMU (static pressure out of range)") or used
+        if p is not None and self.autopilot_type == mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA:
+            # ArduPilot's diff_pressure is the barometer less its ground pressure (GCS_MAVLINK::send_highres_imu),
+            # not the airspeed sensor's: its pitot is in SCALED_PRESSURE
+            p = dataclasses.replace(p, pitot_dp_pa=math.nan)
         if p is not None:
             self._pressure(p, kind, t_in)
         return used

@@ -39,7 +39,7 @@ from vdm_aero._typing import F64Array
 from vdm_aero.errors import UserInputError
 from vdm_aero.geodesy import LocalFrame
 from vdm_aero.nav.driver import NavDriver
-from vdm_aero.nav.filter import NavConfig, NavFilter
+from vdm_aero.nav.filter import AP_ATTITUDE_SIGMA_RAD, SLOW_IMU_HZ, NavConfig, NavFilter
 from vdm_aero.nav.imu_increments import ImuIntegrator
 from vdm_aero.nav.models import NavModels
 from vdm_aero.nav.ports_frontend import PortFrame, PortFrontEnd
@@ -157,6 +157,8 @@ class CompanionService:
         self._next_ap: dict[str, float] = {}
         self._error_logged: dict[str, float] = {}
         self._force_streams = False
+        self._streams_asked: set[str] = set()  # asked for at the last check
+        self.stream_caps_hz: dict[str, float] = {}  # streams the autopilot sends slower than asked, at that rate
         self._inflation = outputs.inflation(cfg.outputs.solution_hz)
         # what is not sensor data (the sensor data go through the decoder)
         self._handlers: dict[str, Callable[[MavlinkMessage, float], None]] = {
@@ -266,8 +268,9 @@ class CompanionService:
         self._print(f"vdm-aero serve: autopilot reboot (boot time {boot_s:.1f} s); re-requesting streams")
         if self.driver is not None:
             for f in self.driver.filters.values():
-                f.imu_recalibrated()
+                f.autopilot_rebooted()
         self.imu_int.reset()
+        self._force_streams = True  # every stream is back at the autopilot's defaults (RAW_IMU at 1 Hz): ask now
         self._next.pop("streams", None)
         self._boot_now_s = -math.inf  # a reboot is not a link gap
 
@@ -342,7 +345,9 @@ class CompanionService:
         pass  # SITL's truth is for replay reports, not for navigating
 
     def on_ap_attitude(self, t_s: float, q_nb: F64Array) -> None:
-        pass  # the IMU comes at its full rate on the link: the filter keeps its own attitude
+        # fused only by a filter started on an IMU too slow to integrate alone (NavConfig.ap_attitude_sigma_rad)
+        if self.driver is not None and math.isfinite(self._boot_now_s):
+            self.driver.ap_attitude(t_s, q_nb)
 
     def on_ap_position(self, t_s: float, lat_deg: float, lon_deg: float, alt_m: float) -> None:
         pass  # the autopilot's estimate is what the service is compared with, not an input
@@ -369,9 +374,18 @@ class CompanionService:
     def _start_filter(self, fix: units.GnssFix) -> None:
         m = self.models
         self.frame = LocalFrame(fix.lat_deg, fix.lon_deg, fix.alt_m)
+        # an IMU too slow to integrate alone (a radio link, a ground station's rates): its samples are points, not
+        # averages, and the autopilot's ATTITUDE, from its IMU at full rate, is fused beside it (as replay does)
+        imu_hz = 1.0 / self.imu_int.typical_dt_s
+        slow = imu_hz < SLOW_IMU_HZ
         cfg = NavConfig(vehicle=m.vehicle, origin_alt_m=fix.alt_m, filter_rate_hz=self.cfg.filter_rate_hz,
-                        gnss_latency_s=self.cfg.gnss_latency_s,
-                        mag_field_ned_ut=np.asarray(self.cfg.mag_field_ned_ut))  # fmt: skip
+                        gnss_latency_s=self.cfg.gnss_latency_s, mag_field_ned_ut=np.asarray(self.cfg.mag_field_ned_ut),
+                        ap_attitude_sigma_rad=AP_ATTITUDE_SIGMA_RAD if slow else None,
+                        imu_point_samples=slow)  # fmt: skip
+        if slow:
+            fused = "its ATTITUDE is fused" if "ATTITUDE" in self.cfg.streams else "no ATTITUDE is asked for"
+            self._print(f"vdm-aero serve: IMU at {imu_hz:.1f} Hz, too slow to integrate alone (< {SLOW_IMU_HZ:g} "
+                        f"Hz): {fused}; expect a poorer solution than on a full-rate IMU")  # fmt: skip
         self.filter = NavFilter(self.cfg.mode, cfg, m.derivatives)
         fe = PortFrontEnd(m.pressure_model, dict(m.models), range_pa=self.cfg.ports.range_pa,
                           noise_pa=self.cfg.ports.noise_pa)  # fmt: skip
@@ -526,13 +540,24 @@ class CompanionService:
             self._save_state()
 
     def _request_streams(self) -> None:
-        """SET_MESSAGE_INTERVAL for every configured stream that is missing or slow since the last check."""
+        """SET_MESSAGE_INTERVAL for every configured stream that is missing or slow since the last check.
+
+        A stream that keeps coming, but slower than asked, after it was asked for is capped by the autopilot
+        (ArduPilot sends nothing faster than its loop, SCHED_LOOP_RATE: 50 Hz on ArduPlane unless raised): said
+        once, and from then on judged against the rate it comes at, so a reboot's 1 Hz default still heals."""
         assert self.autopilot is not None
         force, self._force_streams = self._force_streams, False
+        asked, self._streams_asked = self._streams_asked, set()
         for name, hz in self.cfg.streams.items():
             seen = self._stream_seen.get(name, 0)
             self._stream_seen[name] = 0
-            if not force and hz > 0 and seen >= STREAM_MIN_FRACTION * hz * STREAM_CHECK_S:
+            rate = seen / STREAM_CHECK_S
+            if name in asked and 0 < rate < STREAM_MIN_FRACTION * hz and name not in self.stream_caps_hz:
+                self.stream_caps_hz[name] = rate
+                self._print(f"vdm-aero serve: {name} comes at {rate:.0f} Hz of the {hz:g} Hz asked for: the autopilot "
+                            "caps it (ArduPilot: no faster than SCHED_LOOP_RATE; docs/service.md)")  # fmt: skip
+            want = min(hz, self.stream_caps_hz.get(name, math.inf))
+            if not force and hz > 0 and seen >= STREAM_MIN_FRACTION * want * STREAM_CHECK_S:
                 continue
             msg_id = getattr(mavlink2, f"MAVLINK_MSG_ID_{name}")
             interval_us = 1e6 / hz if hz > 0 else -1
@@ -540,6 +565,7 @@ class CompanionService:
                                                          mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, 0, msg_id,
                                                          interval_us, 0, 0, 0, 0, 0))  # fmt: skip
             self.stats.stream_requests += 1
+            self._streams_asked.add(name)
 
     def _storage_failed(self, what: str, e: OSError) -> None:
         """A write to the state directory failed (full disk, read-only, removed): navigation goes on; counted,
@@ -610,6 +636,7 @@ class CompanionService:
             "bad_frames": self.ep.bad_frames,
             "port_frames": dict(self.assembler.counts),
             "stream_requests": self.stats.stream_requests,
+            "stream_caps_hz": dict(self.stream_caps_hz),
             "solutions_sent": self.stats.solutions_sent,
             "named_values_sent": self.stats.named_values_sent,
             "filter_resets": self.stats.filter_resets,

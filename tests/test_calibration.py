@@ -188,12 +188,13 @@ def test_calibration_from_a_mock_tlog_trains_the_same_correction(
     import math
 
     from sim.sitl.autopilot import AutopilotOptions, run_sitl
-    from vdm_aero_cli.replay_golden import STREAMS, UNIX_TIME_AT_BOOT_S
+    from vdm_aero_cli.replay_golden import LOOP_RATE_HZ, STREAMS, UNIX_TIME_AT_BOOT_S
 
     calib = with_model_ports(load_scenario("calibration-asbuilt"), study["model"])
     tlog = tmp_path / "calib.tlog"
     run_sitl(FlightWorld(calib), "null", speed=math.inf, duration_s=140.0, tlog=tlog, stream_rates=STREAMS,
-             options=AutopilotOptions(gcs_recording=True, unix_time_at_boot_s=UNIX_TIME_AT_BOOT_S))  # fmt: skip
+             options=AutopilotOptions(gcs_recording=True, unix_time_at_boot_s=UNIX_TIME_AT_BOOT_S,
+                                      loop_rate_hz=LOOP_RATE_HZ))  # fmt: skip
     r = _calibrate(tlog, study["model"], study["data"], tmp_path / "cal-tlog")
     assert r.returncode == 0, r.stderr
     from_tlog, from_dir = AeroModel.load(tmp_path / "cal-tlog"), AeroModel.load(calibrated)

@@ -183,3 +183,27 @@ def test_an_autopilot_reboot_gives_the_biases_their_turn_on_sigma_back(world: di
     np.testing.assert_allclose(np.sqrt(np.diag(f.engine.P)[IDX["ba"]]), f.config.accel_bias_sigma_m_s2)
     r.run_until(120.0)  # and the filter goes on navigating
     assert _h_error(world, f, r.t_s) < 10.0
+
+
+def test_an_autopilot_reboot_with_gnss_at_hand_starts_the_pose_again_from_the_next_fix(
+    world: dict[str, Any],
+) -> None:
+    """The boot's IMU gap is of unknown length: aided, the pose (here turned 90° wrong, as a pose carried across a
+    gap can be) is dropped and the next fix starts it again, the slow states kept; the biases get their turn-on σ
+    back."""
+    from vdm_aero.rotation import quat_from_euler, quat_multiply
+
+    r = _runner(world, ("airspeed-dr",))
+    r.run_until(60.0)
+    f = r.filters["airspeed-dr"]
+    assert f.x is not None and not f.in_outage
+    turn = np.array(quat_from_euler(0.0, 0.0, np.pi / 2))
+    f.x.q_nb = quat_multiply(turn, f.x.q_nb)
+    f.x.v_ned = np.array([-f.x.v_ned[1], f.x.v_ned[0], f.x.v_ned[2]])
+    bias_before = f.x.b_gyro_b.copy()
+    f.autopilot_rebooted()
+    assert f.x is None and f.counts["reboots_reinitialised"] == 1 and f.counts["imu_recalibrated"] == 1
+    r.run_until(62.0)  # two seconds, far less than the GNSS lockout the wrong pose would otherwise wait for
+    assert f.x is not None and _h_error(world, f, r.t_s) < 10.0
+    assert f.counts.get("gnss_lockout_reinitialised", 0) == 0
+    np.testing.assert_allclose(f.x.b_gyro_b, bias_before, atol=2e-3)  # the slow states were kept

@@ -70,7 +70,7 @@ def test_mock_tlog_replay_matches_the_benchmark_per_mode(survey_service_run: dic
         assert abs(got - want) <= TOLERANCE_REL * want + TOLERANCE_M, (mode, got, want)
     # what the log holds: the service's streams, ports complete, GNSS gone in the world's outage
     log = doc["log"]
-    assert log["used"]["HIGHRES_IMU"] > 350 * (b + 20.0) and log["malformed"] == 0 and log["truncated_at_byte"] is None
+    assert log["used"]["RAW_IMU"] > 350 * (b + 20.0) and log["malformed"] == 0 and log["truncated_at_byte"] is None
     assert doc["rates_hz"]["imu"] == pytest.approx(400.0, rel=0.01) and doc["port_counts"]["frames"] > 0
     # the service's own messages on the link are not the autopilot's sensors
     assert log["unknown"]["GPS_INPUT"] > 0 and log["unknown"]["NAMED_VALUE_FLOAT (not from the autopilot)"] > 0

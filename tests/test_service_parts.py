@@ -176,6 +176,8 @@ def _config(tmp_path: Path, edit: dict[str, object] | None = None) -> Path:
         node = cfg
         *parents, last = k.split(".")
         for p in parents:
+            if not isinstance(node.get(p), dict):  # ``streams: auto`` edited into a mapping
+                node[p] = {}
             node = node[p]
         node[last] = v
     path = tmp_path / "config.yaml"
@@ -186,7 +188,15 @@ def _config(tmp_path: Path, edit: dict[str, object] | None = None) -> Path:
 def test_shipped_config_reads(tmp_path: Path) -> None:
     cfg = load_config(_config(tmp_path))
     assert cfg.mode == "vdm" and cfg.deim_model == tmp_path / "deim"
-    assert cfg.streams["HIGHRES_IMU"] == 400 and cfg.outputs.solution == "gps_input"
+    assert cfg.outputs.solution == "gps_input"
+    # streams: auto asks ArduPilot for RAW_IMU (HIGHRES_IMU is not in every build), and PX4 for its HIGHRES_IMU
+    # (which carries its barometer and airspeed sensor)
+    assert "HIGHRES_IMU" not in cfg.streams and cfg.streams["RAW_IMU"] >= 200
+    assert {"SCALED_PRESSURE", "GPS_RAW_INT", "SERVO_OUTPUT_RAW", "SYSTEM_TIME", "ATTITUDE"} <= set(cfg.streams)
+    px4 = load_config(_config(tmp_path, {"autopilot": "px4", "outputs.solution": "odometry"}))
+    assert "RAW_IMU" not in px4.streams and px4.streams["HIGHRES_IMU"] >= 100 and "SCALED_PRESSURE" not in px4.streams
+    mine = load_config(_config(tmp_path, {"streams.SCALED_IMU": 20}))
+    assert mine.streams == {"SCALED_IMU": 20}  # a mapping replaces the set
 
 
 @pytest.mark.parametrize(
@@ -195,6 +205,7 @@ def test_shipped_config_reads(tmp_path: Path) -> None:
         ({"navigation.moed": "ins"}, "navigation.moed: unknown key"),
         ({"navigation.mode": "vdm-magic"}, "navigation.mode: expected one of"),
         ({"streams.HIGHRES_IMUU": 100}, "streams.HIGHRES_IMUU: unknown MAVLink message"),
+        ({"streams": "fast"}, "streams: expected auto or a mapping"),
         ({"connection": "udp://1.2.3.4:5"}, "connection:"),
         ({"outputs.solution": "odometry"}, "outputs.solution: expected one of gps_input, none"),  # ardupilot
         ({"signing.require": True}, "signing.require: signing is required but no key_file"),

@@ -306,8 +306,20 @@ def test_set_message_interval_enables_disables_and_rejects() -> None:
         (mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, mavlink2.MAV_RESULT_FAILED),
         (mavlink2.MAV_CMD_DO_FLIGHTTERMINATION, mavlink2.MAV_RESULT_UNSUPPORTED),
     ]
-    assert 199 <= summary["sent"]["HIGHRES_IMU"] <= 201
+    # 100 Hz asked for, 50 Hz sent: no stream is faster than ArduPlane's default loop (SCHED_LOOP_RATE 50)
+    assert 99 <= summary["sent"]["HIGHRES_IMU"] <= 101
     assert "VFR_HUD" not in summary["sent"]
+
+
+def test_no_stream_is_faster_than_the_loop_rate() -> None:
+    """A faster loop (SCHED_LOOP_RATE raised, as on a QuadPlane) lets the 100 Hz asked for through."""
+    pair = MemoryLinkPair()
+    ep = companion(pair)
+    command_long(ep, mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, mavlink2.MAVLINK_MSG_ID_RAW_IMU, 2_500)  # 400 Hz
+    command_long(ep, mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, mavlink2.MAVLINK_MSG_ID_HIGHRES_IMU, 10_000)  # 100 Hz
+    summary = run_to_end(ScriptedWorld(noiseless()), pair, 2.0, options=AutopilotOptions(loop_rate_hz=200.0))
+    assert 199 <= summary["sent"]["HIGHRES_IMU"] <= 201
+    assert 399 <= summary["sent"]["RAW_IMU"] <= 401  # capped at 200 Hz
 
 
 def test_request_data_stream_sets_group_rates() -> None:
@@ -507,11 +519,16 @@ def test_unit_conversions_round_trip_against_the_truth() -> None:
             assert tick.imu is not None and m.time_usec == round(tick.imu.t_s * 1e6)
             np.testing.assert_allclose([m.xacc, m.yacc, m.zacc], tick.imu.accel_b_m_s2, rtol=1e-6, atol=1e-6)
             np.testing.assert_allclose([m.xgyro, m.ygyro, m.zgyro], tick.imu.gyro_b_rad_s, rtol=1e-6, atol=1e-7)
-            assert m.temperature == pytest.approx(35.0)
-            if tick.truth.t_s < 0.02:  # mag, baro and pitot sample at 50 Hz: not there at the first step
-                assert m.fields_updated == 0x103F
+            if tick.truth.t_s < 0.02:  # mag and baro sample at 50 Hz: not there at the first step
+                assert m.fields_updated == 0x003F
                 continue
             assert m.fields_updated == 0x1FFF
+            # as ArduPilot's send_highres_imu: barometer 1, its temperature, and diff_pressure = its pressure less
+            # the ground pressure (its first reading), not the airspeed sensor's
+            baro = world.at_ms(m.time_usec // 20_000 * 20).baro  # the latest barometer sample (50 Hz)
+            assert baro is not None and m.temperature == pytest.approx(baro.temperature_c, abs=1e-4)
+            ground_hpa = world.at_ms(20).baro.pressure_pa / 100.0  # type: ignore[union-attr]
+            assert m.diff_pressure == pytest.approx(m.abs_pressure - ground_hpa, abs=1e-3)
             assert m.abs_pressure == pytest.approx(isa_pressure_pa(tick.truth.alt_m) / 100.0, abs=0.1)  # hPa
             assert m.pressure_alt == pytest.approx(tick.truth.alt_m, abs=2.0)  # ISA world, ISA pressure altitude
             mag_t = np.array([m.xmag, m.ymag, m.zmag]) * 1e-4  # gauss → T

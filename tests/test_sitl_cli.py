@@ -119,7 +119,9 @@ def test_gcs_recording_writes_a_replayable_tlog_without_a_companion(tmp_path: Pa
                        capture_output=True)  # fmt: skip
         return tlog
 
-    rec = read_log(fly("rec", "--gcs-recording"), ("P00", "P01"))
+    rec = read_log(fly("rec", "--gcs-recording", "--loop-rate-hz", "400"), ("P00", "P01"))
     assert rec.log.meta["rates_hz"]["imu"] > 390.0 and len(rec.log["ports_t_s"]) > 50
+    plane = read_log(fly("plane", "--gcs-recording"), ("P00", "P01"))  # ArduPlane's default loop: 50 Hz at most
+    assert 49.0 < plane.log.meta["rates_hz"]["imu"] < 51.0
     silent = read_log(fly("silent"), ("P00", "P01"))
     assert len(silent.log["ports_t_s"]) == 0 and any("no port values" in w for w in silent.report.warnings)

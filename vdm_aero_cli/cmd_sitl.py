@@ -53,6 +53,12 @@ def register(sub: Any) -> None:
         "and WIND at 4 Hz, HEARTBEAT at 1 Hz, and the scenario's pressure ports as NAMED_VALUE_FLOAT (they flow "
         "without a companion); no HIGHRES_IMU. --stream-rate overrides any of these",
     )
+    p.add_argument(
+        "--loop-rate-hz",
+        type=float,
+        metavar="HZ",
+        help="the autopilot's SCHED_LOOP_RATE: no stream is sent faster (default 50, ArduPlane's)",
+    )
     p.add_argument("--faults", type=Path, metavar="FILE",
                    help="scripted link and sensor faults in autopilot time (YAML, see docs/reliability.md): link "
                    "silence, GNSS jump/drift, stuck/NaN/missing/out-of-range ports, message floods")  # fmt: skip
@@ -140,7 +146,11 @@ def run_sitl_cmd(args: argparse.Namespace) -> int:
             signing_key=key,
             require_signing=args.require_signing,
             ports_as_debug_array=args.ports_debug_array,
-            options=AutopilotOptions(gcs_recording=args.gcs_recording, faults=faults),
+            options=AutopilotOptions(
+                gcs_recording=args.gcs_recording,
+                faults=faults,
+                **({"loop_rate_hz": args.loop_rate_hz} if args.loop_rate_hz else {}),
+            ),
             on_ready=lambda where: print(f"mock autopilot on {where}, scenario {scenario.name}", flush=True),
         )
     except FlightEnvelopeError as e:  # the simulated aircraft crashed or lost control: an outcome, not a bug

@@ -195,7 +195,7 @@ def fly_faults(flight: FaultFlight, work: Path, *, mag_field_ned_ut: tuple[float
         cmd = [*VDM_AERO, "sitl", "--nav-scenario", run.scenario, "--seed", str(run.seed), "--outage-s",
                f"{run.outage_s:g}", "--ports-model", str(run.deim), "--connect", f"udpout:127.0.0.1:{port}",
                "--speed", f"{run.speed:g}", "--truth", str(work / "truth.npz"), "--faults", str(work / "faults.yaml"),
-               "--json"]  # fmt: skip
+               "--loop-rate-hz", f"{run.loop_rate_hz:g}", "--json"]  # fmt: skip
         if run.stop_after_s is not None:
             cmd += ["--duration-s", f"{run.stop_after_s:g}"]
         if run.signing_key_hex is not None:

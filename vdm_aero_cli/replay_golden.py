@@ -17,6 +17,8 @@ from typing import Any, Final
 
 import numpy as np
 
+from firmware_bridge.config import DEFAULT_STREAMS
+
 __all__ = ["GOLDEN_COLUMNS", "TOLERANCES", "build_design_models", "fly_golden", "golden_rows", "update_golden"]
 
 SCENARIO: Final = "survey"
@@ -26,9 +28,9 @@ OUTAGE_S: Final = (60.0, 80.0)
 MODES: Final = ("ins", "airspeed-dr", "ports-airdata", "vdm-classic", "vdm-deim")
 EVERY_S: Final = 2.0  # decimation of the committed history: 5 modes × ~50 rows
 UNIX_TIME_AT_BOOT_S: Final = 1.8e9  # a fixed SYSTEM_TIME epoch, so the tlog is the same bytes on every run
-STREAMS: Final = {"HIGHRES_IMU": 400.0, "SCALED_PRESSURE": 50.0, "GPS_RAW_INT": 5.0, "SERVO_OUTPUT_RAW": 50.0,
-                  "SYSTEM_TIME": 1.0}  # fmt: skip
-"""deploy/config.yaml's stream rates: what the service asks the autopilot for."""
+STREAMS: Final = dict(DEFAULT_STREAMS["ardupilot"])
+"""What the service asks ArduPilot for (deploy/config.yaml's ``streams: auto``)."""
+LOOP_RATE_HZ: Final = 400.0  # SCHED_LOOP_RATE raised from ArduPlane's 50 Hz, as docs/service.md asks
 GOLDEN_COLUMNS: Final = ("mode", "t_s", "n_m", "e_m", "d_m", "vn_m_s", "ve_m_s", "vd_m_s", "roll_deg", "pitch_deg",
                          "yaw_deg", "sigma_h_m")  # fmt: skip
 TOLERANCES: Final = {"position_m": 0.01, "velocity_m_s": 0.002, "attitude_deg": 0.01, "sigma_h_m": 0.005}
@@ -63,7 +65,7 @@ def fly_golden(work: Path, deim_dir: Path) -> dict[str, Any]:
     work.mkdir(parents=True, exist_ok=True)
     tlog, truth = work / "golden.tlog", work / "golden-truth.npz"
     run_sitl(FlightWorld(sc), "null", speed=math.inf, duration_s=FLIGHT_S, tlog=tlog, truth=truth,
-             stream_rates=STREAMS, options=AutopilotOptions(gcs_recording=True,
+             stream_rates=STREAMS, options=AutopilotOptions(gcs_recording=True, loop_rate_hz=LOOP_RATE_HZ,
                                                             unix_time_at_boot_s=UNIX_TIME_AT_BOOT_S))  # fmt: skip
     return {"tlog": tlog, "truth": truth, "mag": np.asarray(meta["mag_field_ned_t"]) * 1e6}
 

@@ -32,6 +32,7 @@ from sim.sitl.faults import FaultSchedule
 from sim.sitl.link import Link, MavlinkEndpoint, MavlinkMessage, SigningConfig, open_link
 from sim.sitl.streams import (
     DEBUG_FLOAT_ARRAY_LEN,
+    PLANE_LOOP_RATE_HZ,
     NavEstimate,
     SensorState,
     Stream,
@@ -97,6 +98,7 @@ class AutopilotOptions:
     gcs_recording: bool = False
     faults: FaultSchedule | None = None  # scripted link and sensor faults (sim/sitl/faults.py)
     second_sensors: SecondSensors = field(default_factory=SecondSensors)
+    loop_rate_hz: float = PLANE_LOOP_RATE_HZ  # SCHED_LOOP_RATE: no stream is sent faster (streams.py)
 
 
 class RunSummary(TypedDict):
@@ -198,7 +200,7 @@ class MockAutopilot:
         self._ports_as_debug_array = ports_as_debug_array
         self._tlog_path = tlog_path
         self._truth_path = truth_path
-        self._scheduler = StreamScheduler(default_rates(stream_rates))
+        self._scheduler = StreamScheduler(default_rates(stream_rates), loop_rate_hz=self._options.loop_rate_hz)
         signing = SigningConfig(signing_key, require=require_signing) if signing_key is not None else None
         self._owns_link = isinstance(url, str)
         self.link: Link = open_link(url) if isinstance(url, str) else url
@@ -370,6 +372,8 @@ class MockAutopilot:
             # last_fix_time_ms; PX4 its sensor_gps timestamp), not the receiver's time of validity
             st.gnss = replace(st.gnss, t_s=truth.t_s)
         st.baro = tick.baro or st.baro
+        if st.ground_pressure_pa is None and st.baro is not None:
+            st.ground_pressure_pa = st.baro.pressure_pa
         if tick.baro is not None:
             st.baro2 = self._second.baro(tick.baro)
         st.mag = tick.mag or st.mag

@@ -113,6 +113,12 @@ MESSAGE_TABLE: tuple[MessageSpec, ...] = (
 #   shortfalls are ArduPilot's stream scheduler deferring messages under load, which the mock does not model.
 GCS_REQUEST_HZ = 4.0
 
+# ArduPlane's main loop rate, SCHED_LOOP_RATE: 50 Hz unless set (libraries/AP_Scheduler/AP_Scheduler.cpp,
+# SCHEDULER_DEFAULT_LOOP_RATE: 400 for Copter and Sub, 50 otherwise). GCS_MAVLINK::update_send runs at most once a
+# loop and a message goes out at most once per call, so no stream is faster than the loop, whatever interval
+# SET_MESSAGE_INTERVAL asked for; and the IMU sample sent is the latest one at that loop.
+PLANE_LOOP_RATE_HZ = 50.0
+
 
 def gcs_request_rates(hz: float = GCS_REQUEST_HZ) -> dict[str, float]:
     """The overrides (for :func:`default_rates`) of a ground station that asks for every group at ``hz``, as
@@ -157,7 +163,10 @@ def default_rates(overrides: Mapping[str, float] | None) -> dict[str, float]:
 class StreamScheduler:
     """Per-message intervals in world time and the next due time of each message."""
 
-    def __init__(self, defaults: Mapping[str, float]) -> None:
+    def __init__(self, defaults: Mapping[str, float], *, loop_rate_hz: float = PLANE_LOOP_RATE_HZ) -> None:
+        if not math.isfinite(loop_rate_hz) or loop_rate_hz <= 0.0:
+            raise UserInputError(f"loop rate {loop_rate_hz} Hz: must be a finite rate > 0")
+        self.loop_rate_hz = loop_rate_hz
         self._defaults = dict(defaults)
         self._interval_s: dict[str, float] = {}
         self._next_s: dict[str, float] = {}
@@ -165,12 +174,12 @@ class StreamScheduler:
             self.set_rate(name, hz, now_s=-math.inf)
 
     def set_rate(self, name: str, hz: float, *, now_s: float) -> None:
-        """Send ``name`` at ``hz`` from ``now_s`` on (0 disables)."""
+        """Send ``name`` at ``hz`` (at most the loop rate) from ``now_s`` on (0 disables)."""
         if hz <= 0.0:
             self._interval_s.pop(name, None)
             self._next_s.pop(name, None)
             return
-        self._interval_s[name] = 1.0 / hz
+        self._interval_s[name] = 1.0 / min(hz, self.loop_rate_hz)
         self._next_s[name] = now_s
 
     def set_interval(self, name: str, interval_s: float, *, now_s: float) -> None:
@@ -300,6 +309,7 @@ class SensorState:
         self.gnss: GnssSample | None = None
         self.baro: BaroSample | None = None
         self.baro2: BaroSample | None = None  # the second barometer (SCALED_PRESSURE2)
+        self.ground_pressure_pa: float | None = None  # the barometer's at boot (AP_Baro's ground calibration)
         self.mag: MagSample | None = None
         self.airspeed: AirspeedSample | None = None
         self.servos: ServoSample | None = None
@@ -398,6 +408,8 @@ class TelemetryEncoder:
         return self._mav.scaled_imu2_encode(to_time_boot_ms(imu.t_s), *ints, to_cdegc(imu.temperature_c))
 
     def highres_imu(self, state: SensorState, t_s: float) -> MavlinkMessage | None:
+        """As ArduPilot's GCS_MAVLINK::send_highres_imu: the first IMU and compass, and barometer 1 with
+        diff_pressure = its pressure less the ground pressure (not the airspeed sensor's), temperature its."""
         imu = state.imu
         if imu is None:
             return None
@@ -406,15 +418,13 @@ class TelemetryEncoder:
         if state.mag is not None:
             mag = [to_gauss(float(v)) for v in state.mag.field_b_t]
             updated |= 0x1C0
-        abs_hpa = alt_m = 0.0
+        abs_hpa = diff_hpa = alt_m = temp_c = 0.0
         if state.baro is not None:
-            abs_hpa, alt_m = to_hpa(state.baro.pressure_pa), pressure_altitude_m(state.baro.pressure_pa)
-            updated |= 0x200 | 0x800
-        diff_hpa = 0.0
-        if state.airspeed is not None:
-            diff_hpa = to_hpa(state.airspeed.dp_pa)
-            updated |= 0x400
-        updated |= 0x1000  # temperature
+            p = state.baro.pressure_pa
+            ground = state.ground_pressure_pa if state.ground_pressure_pa is not None else p
+            abs_hpa, diff_hpa, alt_m = to_hpa(p), to_hpa(p - ground), pressure_altitude_m(p)
+            temp_c = state.baro.temperature_c
+            updated |= 0x200 | 0x400 | 0x800 | 0x1000
         return self._mav.highres_imu_encode(
             to_time_usec(imu.t_s),
             *(float(v) for v in imu.accel_b_m_s2),
@@ -423,7 +433,7 @@ class TelemetryEncoder:
             abs_hpa,
             diff_hpa,
             alt_m,
-            imu.temperature_c,
+            temp_c,
             updated,
             0,
         )

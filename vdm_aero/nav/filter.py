@@ -517,6 +517,15 @@ class NavFilter:
         if count:
             self.counts["imu_gaps_reinitialised"] = self.counts.get("imu_gaps_reinitialised", 0) + 1
 
+    def autopilot_rebooted(self) -> None:
+        """The autopilot rebooted in flight: its IMU stopped for a boot of unknown length (the first sample after
+        it says only how long it has been up again) and was calibrated anew. With GNSS at hand the pose starts
+        again from the next fix, as after a long IMU gap; in an outage it coasts over the gap the clock shows."""
+        if self.x is not None and not self.in_outage:
+            self._drop_pose(math.nan, count=False)
+            self.counts["reboots_reinitialised"] = self.counts.get("reboots_reinitialised", 0) + 1
+        self.imu_recalibrated()
+
     def imu_recalibrated(self) -> None:
         """The autopilot rebooted: it measured new gyro offsets at boot (ArduPilot INS_GYR_CAL, PX4's
         startup calibration) and a power cycle redraws the IMU's turn-on biases, so the bias estimates no longer
