@@ -639,8 +639,10 @@ def test_handlers_survive_extreme_values_of_every_handled_message(
             assert errors.get("SCALED_PRESSURE", 0) <= bad_pressure and errors.get("SYSTEM_TIME", 0) <= bad_time
             # finite, or dropped on purpose: diverged, or an IMU stamp back in time (a reboot: the pose waits for
             # the next fix)
-            assert (svc.filter.x is not None and _filter_finite(svc)) or svc.stats.filter_resets > 0 or (
-                svc.filter.counts.get("reboots_reinitialised", 0) > 0 and svc.summary()["autopilot_reboots"] > 0
+            assert (
+                (svc.filter.x is not None and _filter_finite(svc))
+                or svc.stats.filter_resets > 0
+                or (svc.filter.counts.get("reboots_reinitialised", 0) > 0 and svc.summary()["autopilot_reboots"] > 0)
             )
             line = svc.status_line()
             assert line.startswith("status: ") and "\n" not in line
