@@ -42,7 +42,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from firmware_bridge import units
 from firmware_bridge.endpoint import MavlinkMessage
-from firmware_bridge.inputs import AutopilotClock, PortAssembler, PortFrameIn
+from firmware_bridge.inputs import REBOOT_BACKSTEP_S, AutopilotClock, PortAssembler, PortFrameIn
 from vdm_aero._typing import F64Array
 
 __all__ = [
@@ -55,6 +55,12 @@ __all__ = [
     "MavlinkDecoder",
 ]
 
+# An autopilot's reboot against a stale frame (one sample a buffering radio or router sends again late): the
+# first samples after a reboot are a run of new samples older than the last before it, near boot
+REBOOT_RUN: Final = 2  # samples in a row (at the 1 Hz a rebooted ArduPilot streams before it is asked again)
+REBOOT_UPTIME_S: Final = 60.0  # ... starting this near the autopilot's boot
+REBOOT_RUN_S: Final = 2.0  # ... or going on this long (an autopilot first heard again long after its boot)
+REBOOT_RUN_GAP_S: Final = 2.0  # samples of one run are at most this far apart (a 1 Hz stream's, with jitter)
 AUTOPILOT_LOST_S: Final = 3.0  # no autopilot HEARTBEAT this long: another vehicle may take over
 SOURCE_LOST_S: Final = 1.0  # a better-ranked stream silent this long: the next one heard is used
 IMU_SOURCES: Final = ("HIGHRES_IMU", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3")
@@ -211,6 +217,8 @@ class MavlinkDecoder:
         self._last_mag: tuple[float, float, float] | None = None
         self._second_pitot: dict[str, _BaroRelative] = {}
         self.duplicates: dict[str, int] = {}
+        self.stale: dict[str, int] = {}  # IMU frames older than their stream's latest, not a reboot: discarded
+        self._older_run: list[Any] | None = None  # [stream, first, last boot time [s], samples] of older samples
         self.used: dict[str, int] = {}
         self.skipped: dict[str, int] = {}  # "TYPE (why)" → count
         imu, pressure = self._on_scaled_imu, self._on_scaled_pressure
@@ -257,6 +265,25 @@ class MavlinkDecoder:
         self.skipped[why] = self.skipped.get(why, 0) + 1
         return False
 
+    def _reboot_run(self, kind: str, boot_s: float) -> bool:
+        """An IMU sample older than its stream's latest: one stale frame (a buffering radio or router sending
+        it again late), discarded and counted, or the first samples of a rebooted autopilot. A reboot is a run:
+        :data:`REBOOT_RUN` samples in a row, each newer than the one before and all a reboot's step older than
+        the stream's latest, starting near boot (under :data:`REBOOT_UPTIME_S`) — or lasting
+        :data:`REBOOT_RUN_S`, for an autopilot heard again long after its boot. True when this sample
+        confirms one."""
+        run = self._older_run
+        if run is None or run[0] != kind or not run[2] < boot_s <= run[2] + REBOOT_RUN_GAP_S:
+            run = self._older_run = [kind, boot_s, boot_s, 0]
+        run[2], run[3] = boot_s, int(run[3]) + 1
+        far = boot_s < self.boot_now_s - REBOOT_BACKSTEP_S
+        if far and run[3] >= REBOOT_RUN and (float(run[1]) < REBOOT_UPTIME_S or boot_s - float(run[1]) >= REBOOT_RUN_S):
+            self._older_run = None
+            self._stamps.pop(kind, None)
+            return True
+        self.stale[kind] = self.stale.get(kind, 0) + 1
+        return False
+
     def _repeat(self, kind: str, stamp: int) -> bool:
         """Whether ``stamp`` repeats the stream's last one (a repeated frame, or a stream faster than its
         sensor); counted."""
@@ -271,6 +298,11 @@ class MavlinkDecoder:
             return
         src = (msg.get_srcSystem(), msg.get_srcComponent())
         if self.system_id is not None and src[0] != self.system_id:
+            return
+        if src[1] != mavlink2.MAV_COMP_ID_AUTOPILOT1:
+            # ArduPilot and PX4 are component 1 (MAV_COMP_ID_AUTOPILOT1); another component calling itself a
+            # vehicle's autopilot (a gimbal, a second companion, an impostor on the link) is never taken for it
+            self._skip("HEARTBEAT (a vehicle's, but not from MAV_COMP_ID_AUTOPILOT1)")
             return
         new = self.autopilot is None or (src != self.autopilot and t_in - self._heartbeat_at > AUTOPILOT_LOST_S)
         if src != self.autopilot and not new:
@@ -315,10 +347,16 @@ class MavlinkDecoder:
         if use is None:
             self.imu_switches.append(kind)
             self.sink.on_imu_source(kind)
+        s: units.ImuSample = CONVERTERS[kind](msg)
+        last = self._stamps.get(kind)
+        if last is not None and stamp < last and not self._reboot_run(kind, s.t_s):
+            return False  # a stale frame (discarded, counted), or a reboot not confirmed yet
         if self._repeat(kind, stamp):
             return False
-        s: units.ImuSample = CONVERTERS[kind](msg)
+        self._older_run = None
         if self.clock.observe_boot_s(s.t_s):
+            if self.assembler is not None:
+                self.assembler.restart()
             self._stamps.clear()
             self._stamps[kind] = stamp
             self.sink.on_reboot(s.t_s)

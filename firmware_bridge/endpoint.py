@@ -9,12 +9,31 @@ the search for the next magic byte starts again, as a C parser that resynchronis
 frame after garbage is decoded. A candidate is held until its declared length has arrived, at most
 :data:`MAX_FRAME_BYTES`.
 
+**Duplicates.** A router with two routes to one endpoint (MAVProxy with two outputs, a mesh) delivers the
+very same frame twice; a second copy of a port value would close its port frame early. A frame byte for
+byte identical to one accepted from the same (system, component) with the same sequence number within
+:data:`DUPLICATE_WINDOW_S` is dropped before it is decoded (so a signed copy is not taken for a forgery). A
+frame with a reused sequence number (it wraps every 256 frames) but other bytes is a new frame, and so is an
+identical one after the window (a 1 Hz HEARTBEAT can repeat its bytes and sequence number a second later).
+
 **Counters.** ``bad_frames``: stretches of bytes between two good frames that are not a frame (garbage,
 a truncated or corrupted frame, a frame of a message id we do not know: its CRC cannot be checked); each
 stretch counts once. ``rejected_unsigned``: frames with a valid CRC but no or a bad signature while signing
-is required; they never reach the service. ``lost_frames``: frames missing from the sequence numbers of
-each (system, component) source (``lost_by_source``), as MAVProxy's link statistics count them: n numbers
-skipped (mod 256) count n; a repeated number (a duplicate) and a source's first frame count nothing.
+is required; they never reach the service. ``rejected_replayed``: frames with a valid signature that
+MAVLink signing's replay check refuses: a timestamp not newer than the last of their stream (a replay older
+than the duplicate window, a frame overtaken on the link), or a new stream's a minute or more behind ours (a
+signer whose clock is wrong). ``duplicate_frames``: copies dropped as above.
+``lost_frames``: frames missing from the sequence numbers of each (system, component) source
+(``lost_by_source``), as MAVProxy's link statistics count them: n numbers skipped (mod 256) count n; a
+source's first frame counts nothing, and a duplicate never reaches the count. An old frame sent again late
+(a buffering radio) is delivered (the decoder tells it is stale) and, from the sequence numbers alone, looks
+like a gap: each one adds up to 255 to ``lost_frames``.
+
+**Whose address replies go to** (``udpin``, where the peer is whoever sent; see
+:meth:`MavEndpoint.poll`): the sender of a datagram that carried a frame of the autopilot — ``autopilot``,
+its (system, component) as the owner of the endpoint identified it, or before that a vehicle's HEARTBEAT of
+our own system id — and, with signing required, a signed one. A ground station, another companion, a
+radio's RADIO_STATUS (allowed unsigned) or a stranger never steers them.
 
 Limits: a candidate whose declared length reaches past the bytes received waits for them (a valid frame
 behind a stray magic byte is decoded once up to 280 more bytes have come); a signed frame cut inside its
@@ -29,6 +48,7 @@ from __future__ import annotations
 import hashlib
 import re
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -48,6 +68,12 @@ SIGNATURE_BYTES = 6  # the signature proper: the last 6 of the 13-byte signature
 CRC_BYTES = 2
 MAX_FRAME_BYTES = mavlink2.HEADER_LEN_V2 + 255 + CRC_BYTES + mavlink2.MAVLINK_SIGNATURE_BLOCK_LEN  # 280
 SEQ_MODULO = 256
+# two routes' copies come milliseconds apart; a genuine frame with the bytes and the sequence number of one in
+# the window would need a message without a time stamp (HEARTBEAT, RADIO_STATUS) sent faster than 2 Hz, alike,
+# 256 frames of its source apart. Older copies (a radio re-sending a second late) are the decoder's stale frames
+DUPLICATE_WINDOW_S = 0.5
+DUPLICATE_MEMORY = 4096  # (source, seq) keys remembered, over all sources: 256 per source at most, by the seq
+_NOT_VEHICLES = (mavlink2.MAV_TYPE_GCS, mavlink2.MAV_TYPE_ONBOARD_CONTROLLER)  # as the decoder's rule
 _FRAME_START = re.compile(b"[\xfd\xfe]")  # MAVLink 2, MAVLink 1 magic
 _REJECTED = object()  # a well-framed frame refused by the signature check
 
@@ -81,15 +107,20 @@ def _signing_now() -> int:
 
 
 class _Codec(mavlink2.MAVLink):
+    stale_signature = False  # the last signature checked was right but its timestamp not newer (a replay)
+
     def check_signature(self, msgbuf: bytearray, srcSystem: int, srcComponent: int) -> bool:
         """pymavlink stores a stream's timestamp before it compares the signature: one frame with a bad
         signature and a far-future timestamp would then lock the genuine stream out. Compare first."""
         key = self.signing.secret_key
         assert key is not None
         signature = hashlib.sha256(key + bytes(msgbuf[:-SIGNATURE_BYTES])).digest()[:SIGNATURE_BYTES]
+        self.stale_signature = False
         if signature != msgbuf[-SIGNATURE_BYTES:]:
             return False
-        return bool(super().check_signature(msgbuf, srcSystem, srcComponent))
+        ok = bool(super().check_signature(msgbuf, srcSystem, srcComponent))
+        self.stale_signature = not ok  # the key signed it: only the timestamp check can have refused it
+        return ok
 
 
 class MavEndpoint:
@@ -100,13 +131,21 @@ class MavEndpoint:
         self.mav = _Codec(self, srcSystem=system_id, srcComponent=component_id)
         self.bad_frames = 0
         self.rejected_unsigned = 0
+        self.rejected_replayed = 0
+        self.duplicate_frames = 0
         self.lost_frames = 0
         self.lost_by_source: dict[tuple[int, int], int] = {}
         self.sent: dict[str, int] = {}
         self.received_at = 0.0
+        # (system, component) of the autopilot, set by the endpoint's owner once identified: only its frames
+        # name the address replies go to (module docstring)
+        self.autopilot: tuple[int, int] | None = None
+        self._require_signed = signing is not None and signing.require
         self._rx = bytearray()  # bytes of a frame not complete yet (at most MAX_FRAME_BYTES - 1)
         self._in_sync = True  # False from the first byte of a bad stretch to the next good frame
         self._last_seq: dict[tuple[int, int], int] = {}
+        # (system, component, seq) → (the frame, its arrival time), oldest first, of accepted frames
+        self._recent: dict[tuple[int, int, int], tuple[bytes, float]] = {}
         if signing is not None:
             s = self.mav.signing
             s.secret_key = signing.key
@@ -136,7 +175,10 @@ class MavEndpoint:
         self.sent[kind] = self.sent.get(kind, 0) + 1
 
     def poll(self, timeout_s: float) -> list[MavlinkMessage]:
-        """Messages decoded from what arrived within ``timeout_s`` (returns as soon as bytes arrive)."""
+        """Messages decoded from what arrived within ``timeout_s`` (returns as soon as bytes arrive).
+
+        When they include a frame of the autopilot (module docstring), the transport is told that their
+        sender is the peer (``confirm_peer``: ``udpin`` replies go there from now on)."""
         data = self.transport.recv(timeout_s)
         self.received_at = time.monotonic()  # before decoding: latency is counted from the bytes' arrival
         if not data:
@@ -154,7 +196,13 @@ class MavEndpoint:
             size = _frame_size(buf, i, n)
             if size is None:
                 break  # the rest of this frame has not arrived yet
-            msg = self._decode(buf[i : i + size]) if size else None
+            frame = buf[i : i + size]
+            if size and self._duplicate(frame):  # before decoding: a signed copy is not a forgery
+                self.duplicate_frames += 1
+                self._in_sync = True
+                i += size
+                continue
+            msg = self._decode(frame) if size else None
             if msg is None:  # not a frame: resynchronise from the next byte
                 self._lost_sync()
                 i += 1
@@ -163,13 +211,49 @@ class MavEndpoint:
             i += size
             if msg is not _REJECTED:
                 self._count_sequence(msg)
+                self._remember(frame)
                 out.append(msg)
         del buf[:i]
-        if out:
-            confirm = getattr(self.transport, "confirm_peer", None)
+        if any(map(self._names_the_peer, out)):
+            confirm: Callable[[], None] | None = getattr(self.transport, "confirm_peer", None)
             if confirm is not None:
                 confirm()
         return out
+
+    def _names_the_peer(self, msg: MavlinkMessage) -> bool:
+        """Whether ``msg`` is the autopilot's, so that its sender's address is the one to reply to."""
+        if self._require_signed and not msg.get_signed():
+            return False  # RADIO_STATUS, allowed unsigned, never steers replies
+        src = (msg.get_srcSystem(), msg.get_srcComponent())
+        if self.autopilot is not None:
+            return src == self.autopilot
+        # not identified yet: the autopilot component's HEARTBEAT in our system (a companion joins its vehicle's
+        # system)
+        return (
+            msg.get_type() == "HEARTBEAT"
+            and src == (self.mav.srcSystem, mavlink2.MAV_COMP_ID_AUTOPILOT1)
+            and msg.type not in _NOT_VEHICLES
+            and msg.autopilot != mavlink2.MAV_AUTOPILOT_INVALID
+        )
+
+    @staticmethod
+    def _key(frame: bytearray) -> tuple[int, int, int]:
+        """(system, component, seq) from a frame's header."""
+        if frame[0] == mavlink2.PROTOCOL_MARKER_V2:
+            return frame[5], frame[6], frame[4]
+        return frame[3], frame[4], frame[2]
+
+    def _duplicate(self, frame: bytearray) -> bool:
+        """Whether ``frame`` is a copy of one accepted within :data:`DUPLICATE_WINDOW_S` (module docstring)."""
+        seen = self._recent.get(self._key(frame))
+        return seen is not None and seen[0] == frame and self.received_at - seen[1] <= DUPLICATE_WINDOW_S
+
+    def _remember(self, frame: bytearray) -> None:
+        key = self._key(frame)
+        self._recent.pop(key, None)  # re-inserted last: the dict stays in arrival order
+        self._recent[key] = (bytes(frame), self.received_at)
+        if len(self._recent) > DUPLICATE_MEMORY:
+            del self._recent[next(iter(self._recent))]
 
     def _lost_sync(self) -> None:
         if self._in_sync:
@@ -178,11 +262,15 @@ class MavEndpoint:
 
     def _decode(self, frame: bytearray) -> MavlinkMessage | None:
         """The message; :data:`_REJECTED` for a frame refused by the signature check; None if not a frame."""
+        self.mav.stale_signature = False  # an unsigned frame is never checked: no verdict of an earlier one
         try:
             return self.mav.decode(frame)
         except mavlink2.MAVError as e:
             if e.message == "Invalid signature":  # raised only after the CRC has passed: a frame, refused
-                self.rejected_unsigned += 1
+                if self.mav.stale_signature:
+                    self.rejected_replayed += 1
+                else:
+                    self.rejected_unsigned += 1
                 return _REJECTED
             return None
 

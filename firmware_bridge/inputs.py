@@ -4,7 +4,10 @@
   one ``time_boot_ms`` (within :attr:`PortAssembler.merge_ms`: ArduPilot stamps each ``send_named_float``
   with ``millis()`` at the call, so the ports of one script update can straddle a millisecond). A frame is
   complete when every port has arrived; a partial one is closed after ``timeout_s`` with NaN for the missing
-  ports (they then go to the gappy model) and counted.
+  ports (they then go to the gappy model) and counted. A value older than the open frame, or than the last
+  closed one, is late (a straggler, or a frame a buffering radio sends again a second later): dropped and
+  counted, so it never closes the open frame early nor opens one of its own; after an autopilot reboot
+  (:meth:`PortAssembler.restart`) the times start again.
 * :class:`AutopilotClock`: the autopilot's boot time → a continuous filter time across autopilot reboots,
   and TIMESYNC: the offset between the autopilot's clock and ours.
 """
@@ -41,6 +44,7 @@ class PortAssembler:
         self.timeout_s = timeout_s
         self.merge_ms = merge_ms
         self._ms: int | None = None
+        self._last_ms: int | None = None  # the time of the last frame closed
         # plain lists: a value arrives 1200 times a second (12 ports at 100 Hz); numpy per value costs more
         self._values = [math.nan] * len(self.names)
         self._seen = [False] * len(self.names)
@@ -53,6 +57,7 @@ class PortAssembler:
         assert self._ms is not None
         out = PortFrameIn(self._ms * 1e-3, np.array(self._values, dtype=np.float64), complete, self._last_at)
         self.counts["complete" if complete else "partial"] += 1
+        self._last_ms = self._ms
         self._ms = None
         n = len(self.names)
         self._values = [math.nan] * n
@@ -67,10 +72,11 @@ class PortAssembler:
             self.counts["unknown_name"] += 1
             return []
         out = []
+        newest = self._ms if self._ms is not None else self._last_ms
+        if newest is not None and time_boot_ms < newest - self.merge_ms:
+            self.counts["late"] += 1  # a straggler of a closed frame, or one sent again late
+            return []
         if self._ms is not None and (self._seen[i] or abs(time_boot_ms - self._ms) > self.merge_ms):
-            if time_boot_ms < self._ms - self.merge_ms and not self._seen[i]:
-                self.counts["late"] += 1  # a straggler of an already closed frame
-                return []
             out.append(self._close(False))
         if self._ms is None:
             self._ms, self._opened_at = time_boot_ms, now
@@ -81,6 +87,14 @@ class PortAssembler:
         if self._n_seen == len(self._seen):
             out.append(self._close(True))
         return out
+
+    def restart(self) -> None:
+        """The autopilot rebooted: its times start again (an open frame is dropped: it is from before)."""
+        self._ms = self._last_ms = None
+        n = len(self.names)
+        self._values = [math.nan] * n
+        self._seen = [False] * n
+        self._n_seen = 0
 
     def expire(self, now: float) -> PortFrameIn | None:
         """Close a partial frame that has waited ``timeout_s``."""

@@ -181,13 +181,14 @@ class CompanionService:
                 t_in = self.ep.received_at
                 for msg in msgs:
                     self._dispatch(msg, t_in)
+                self.ep.autopilot = self.decoder.autopilot  # only its frames name the reply address (udpin)
                 now = time.monotonic()
                 if now >= next_periodic:  # ~1000 polls a second at 400 Hz IMU: the upkeep needs 200
                     next_periodic = now + PERIODIC_S
                     self._periodic(now)
         finally:
             self.notify.notify(stopping=1, status="saving the filter state")
-            self._save_state()
+            self._print(f"vdm-aero serve: {self._save_state()}")
             if self.navlog is not None:
                 self.navlog.close()
             self.transport.close()
@@ -414,8 +415,15 @@ class CompanionService:
             f.engine = None
 
     def _on_timesync(self, msg: MavlinkMessage, t_in: float) -> None:
-        if msg.tc1 != 0 and self._from_autopilot(msg):
+        """The autopilot's reply to our request (tc1 ≠ 0), or its request (tc1 = 0: ArduPilot and PX4 both ask
+        their companions): answered with our monotonic clock [ns] and its ts1 echoed, as the MAVLink timesync
+        protocol says."""
+        if not self._from_autopilot(msg):
+            return
+        if msg.tc1 != 0:
             self.clock.timesync(int(msg.tc1), int(msg.ts1), time.monotonic_ns())
+        else:
+            self.ep.send(self.ep.mav.timesync_encode(time.monotonic_ns(), int(msg.ts1)))
 
     def _on_command_ack(self, msg: MavlinkMessage, t_in: float) -> None:
         key = f"{msg.command}:{msg.result}"
@@ -596,14 +604,20 @@ class CompanionService:
                            float(s.wind_ned_m_s[1]), "outage" if f.in_outage else "aided", f.mode,
                            f.port_health[0], self._health_code()])  # fmt: skip
 
-    def _save_state(self) -> None:
-        if self.filter is None:
-            return
+    def _save_state(self) -> str:
+        """Save the filter's slow states; returns what happened, in words (the shutdown line says it)."""
+        f = self.filter
+        if f is None or f.x is None or f.engine is None:
+            return "no filter state to save (the filter is not initialised)"
         try:
             boot = self._unix_minus_boot_s if self._unix_minus_boot_s is not None else math.nan
-            self.store.save(self.filter, models_id=self.models_id, autopilot_boot_unix_s=boot)
+            saved = self.store.save(f, models_id=self.models_id, autopilot_boot_unix_s=boot)
         except OSError as e:
             self._storage_failed("state", e)
+            return f"filter state NOT saved to {self.store.path}: {e.strerror or e}"
+        if not saved:
+            return "filter state not saved: it is not finite (the last good state file stays)"
+        return f"filter state saved to {self.store.path}"
 
     # ------------------------------------------------------------------------------------- status
     def status_line(self) -> str:
@@ -619,8 +633,10 @@ class CompanionService:
         fb = f", FALLBACK {h['fallback']}" if h["fallback"] else ""
         return (f"status: {h['mode']} gnss={h['gnss']} ports {h['ports_ok']}/{h['ports']}{fb} "
                 f"σh={h['horizontal_sigma_m']:.1f} m wind={wind:.1f} m/s frames {self.assembler.counts['complete']}"
-                f"+{self.assembler.counts['partial']} partial, rejected unsigned {self.ep.rejected_unsigned}, "
-                f"bad frames {self.ep.bad_frames}, lost {getattr(self.ep, 'lost_frames', 0)}, "
+                f"+{self.assembler.counts['partial']} partial, rejected unsigned {self.ep.rejected_unsigned}"
+                + (f" and replayed {self.ep.rejected_replayed}" if self.ep.rejected_replayed else "")
+                + f", bad frames {self.ep.bad_frames}, lost {getattr(self.ep, 'lost_frames', 0)}, "
+                f"duplicated {self.ep.duplicate_frames}, "
                 f"errors {sum(self.stats.handler_errors.values())}, latency p99 {lat['p99']:.2f} ms"
                 + (f", link gaps {len(self.stats.link_gaps)}" if self.stats.link_gaps else "")
                 + (f", STORAGE FAILING ({self.stats.last_storage_error})"
@@ -633,6 +649,7 @@ class CompanionService:
             "sent": dict(self.ep.sent),
             "handler_errors": dict(self.stats.handler_errors),
             "rejected_unsigned": self.ep.rejected_unsigned,
+            "rejected_replayed": self.ep.rejected_replayed,
             "bad_frames": self.ep.bad_frames,
             "port_frames": dict(self.assembler.counts),
             "stream_requests": self.stats.stream_requests,
@@ -641,7 +658,9 @@ class CompanionService:
             "named_values_sent": self.stats.named_values_sent,
             "filter_resets": self.stats.filter_resets,
             "duplicates": sum(self.decoder.duplicates.get(k, 0) for k in IMU_SOURCES),
+            "stale_imu_frames": sum(self.decoder.stale.values()),  # older than their stream's latest: dropped
             "lost_frames": getattr(self.ep, "lost_frames", 0),
+            "duplicate_frames": self.ep.duplicate_frames,
             "link_gaps": list(self.stats.link_gaps),
             "storage_errors": dict(self.stats.storage_errors),
             "dropped_sends": self.transport.dropped_sends,

@@ -2,11 +2,14 @@
 
 ==========================================  ===============================================================
 ``serial:///dev/ttyAMA0:921600``            a UART (pyserial); reopened with backoff when the device goes away
-``udpin://0.0.0.0:14551``                   bind; replies go to the last sender (a router's ``udpout``)
+``udpin://0.0.0.0:14551``                   bind; replies go to the autopilot's sender (a router's ``udpout``)
 ``udpout://127.0.0.1:14550``                send to HOST:PORT; accept replies from anyone
 ``tcp://127.0.0.1:5760``                    TCP client; reconnects with backoff while the server is down
 ==========================================  ===============================================================
 
+``udpin`` replies go to the sender of the last datagram that carried the autopilot's frames (signed ones, when
+signing is required): the endpoint decides and says so (:meth:`UdpTransport.confirm_peer`), so a ground
+station, a radio's RADIO_STATUS or a stranger sending to the same port never takes the service's outputs.
 ``udpin:HOST:PORT`` (pymavlink's spelling, no ``//``) is accepted too. Reconnection backs off exponentially
 from :data:`BACKOFF_MIN_S` to :data:`BACKOFF_MAX_S` so a missing autopilot costs no CPU, and resets on
 success. What cannot be sent (no peer yet, a full socket) is dropped and counted: the service's outputs are
@@ -101,7 +104,7 @@ class _Backoff:
 
 
 class UdpTransport:
-    """``udpin`` (bound; replies to the last sender) or ``udpout`` (fixed peer)."""
+    """``udpin`` (bound; replies to the autopilot's sender, :meth:`confirm_peer`) or ``udpout`` (fixed peer)."""
 
     def __init__(self, url: TransportUrl) -> None:
         self.description = str(url)
@@ -164,9 +167,9 @@ class UdpTransport:
         return b"".join(chunks)
 
     def confirm_peer(self) -> None:
-        """The last recv held frames the endpoint accepted (a valid frame; signed, when signing is required):
-        ``udpin`` replies go to that sender from now on. Garbage or a rogue's unsigned frames never steer
-        them."""
+        """The last recv held a frame of the autopilot (the endpoint's rule, :mod:`firmware_bridge.endpoint`:
+        its system and component, signed when signing is required): ``udpin`` replies go to that sender from
+        now on. Garbage, a rogue's unsigned frames, a ground station's or a radio's never steer them."""
         if self.description.startswith("udpin") and self.last_sender is not None:
             self._peer = self.last_sender
 

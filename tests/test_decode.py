@@ -153,7 +153,9 @@ def test_repeats_reboots_and_unix_time_fixes() -> None:
     imu(100.0)
     imu(100.0)  # a router repeating a frame
     assert len(rec.ev["imu"]) == 1 and dec.duplicates == {"RAW_IMU": 1}
-    imu(0.5)  # the autopilot rebooted: its clock starts again; ours goes on
+    imu(0.5)  # the autopilot rebooted: its clock starts again (one sample could be a stale frame) ...
+    assert "reboot" not in rec.ev and dec.stale == {"RAW_IMU": 1}
+    imu(0.52)  # ... the next confirms it; ours goes on
     assert len(rec.ev["reboot"]) == 1 and rec.ev["imu"][-1][0] > 100.0
     unix_boot = 1_700_000_000.0
     gps = mavlink2.MAVLink_gps_raw_int_message(round((unix_boot + 0.9) * 1e6), 3, 473977420, 85455940, 500000,
@@ -217,3 +219,74 @@ def test_the_service_integrates_only_the_imu_streams_it_asked_for() -> None:
     _feed(dec, mav, hb, 0.0)
     _feed(dec, mav, mavlink2.MAVLink_raw_imu_message(1_000_000, 0, 0, -1000, 0, 0, 0, 0, 0, 0, 0, 0), 1.0)
     assert "imu" not in rec.ev and dec.skipped == {"RAW_IMU (not an IMU stream asked for)": 1}
+
+
+def _raw(dec: MavlinkDecoder, mav: mavlink2.MAVLink, boot_s: float, t_in: float) -> None:
+    _feed(dec, mav, mavlink2.MAVLink_raw_imu_message(round(boot_s * 1e6), 0, 0, -1000, 0, 0, 0, 0, 0, 0, 0, 0), t_in)
+
+
+def test_a_stale_imu_frame_is_discarded_and_counted_not_taken_for_a_reboot() -> None:
+    """A buffering radio or router sends a genuine sample again 0.7 s and 1.2 s late: each is dropped and
+    counted; the clock does not move and no reboot is seen (it used to be, at 1.2 s, and the filter's clock
+    jumped)."""
+    mav, hb = _mav()
+    rec = Recorder()
+    dec = MavlinkDecoder(rec)
+    _feed(dec, mav, hb, 0.0)
+    t = 100.0
+    for k in range(200):  # 50 Hz
+        t = 100.0 + k / 50
+        _raw(dec, mav, t, t)
+        if k in (100, 150):
+            late = 0.7 if k == 100 else 1.2
+            _raw(dec, mav, t - late, t)
+    assert dec.stale == {"RAW_IMU": 2} and dec.clock.reboots == 0 and "reboot" not in rec.ev
+    assert len(rec.ev["imu"]) == 200
+    boot = [ev[1].t_s for ev in rec.ev["imu"]]
+    assert np.all(np.diff(boot) > 0)  # what reached the sink never went back in time
+    assert dec.clock.filter_s(t) == pytest.approx(t)
+
+
+@pytest.mark.parametrize("uptime_s", [0.0, 100.0])
+def test_a_reboot_is_a_run_of_new_samples(uptime_s: float) -> None:
+    """Near boot a reboot is confirmed by its second sample (the first is held back, counted); an autopilot
+    heard again long after its boot (uptime 100 s, older than before) only by a run lasting REBOOT_RUN_S."""
+    from firmware_bridge.decode import REBOOT_RUN_S
+
+    mav, hb = _mav()
+    rec = Recorder()
+    dec = MavlinkDecoder(rec)
+    _feed(dec, mav, hb, 0.0)
+    for k in range(50):
+        _raw(dec, mav, 200.0 + k / 50, 10.0 + k / 50)
+    n_before = len(rec.ev["imu"])
+    held = 0
+    for k in range(300):  # the rebooted autopilot at 50 Hz (asked again at once)
+        _raw(dec, mav, uptime_s + k / 50, 20.0 + k / 50)
+        if "reboot" in rec.ev:
+            break
+        held += 1
+    assert len(rec.ev["reboot"]) == 1 and dec.clock.reboots == 1
+    if uptime_s < 60.0:
+        assert held == 1
+    else:
+        assert held == pytest.approx(REBOOT_RUN_S * 50, abs=1)
+    assert dec.stale["RAW_IMU"] == held
+    assert len(rec.ev["imu"]) == n_before + 1  # the confirming sample went on, at a filter time after the last
+    assert rec.ev["imu"][-1][0] > rec.ev["imu"][n_before - 1][0]
+
+
+def test_a_component_other_than_autopilot1_is_never_the_autopilot() -> None:
+    """A second component of our system calling itself a fixed-wing ArduPilot (a gimbal, another companion, a
+    stranger on the link), heard first and all along: never the autopilot; MAV_COMP_ID_AUTOPILOT1 is."""
+    mav, hb = _mav()
+    imp_mav, imp_hb = _mav(comp=2)
+    rec = Recorder()
+    dec = MavlinkDecoder(rec)
+    _feed(dec, imp_mav, imp_hb, 0.0)
+    assert dec.autopilot is None and "autopilot" not in rec.ev
+    for k in range(10):
+        _feed(dec, mav, hb, 0.6 + k)
+        _feed(dec, imp_mav, imp_hb, 0.5 + k + 5.0)  # even after the autopilot has been silent 3 s
+    assert dec.autopilot == (1, 1) and [a[0] for a in rec.ev["autopilot"] if a[1]] == [(1, 1)]
+    assert dec.skipped["HEARTBEAT (a vehicle's, but not from MAV_COMP_ID_AUTOPILOT1)"] == 11

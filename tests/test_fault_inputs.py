@@ -69,7 +69,7 @@ def tried(request: pytest.FixtureRequest) -> Iterator[dict[str, int]]:
 
 # ------------------------------------------------------------------------------------ receive path
 class _FeedLink:
-    """A transport whose ``recv`` hands out the queued chunks, one per call."""
+    """A transport whose ``recv`` hands out the queued chunks, one per call, and keeps what is sent."""
 
     description = "feed"
     dropped_sends = 0
@@ -78,9 +78,10 @@ class _FeedLink:
 
     def __init__(self, chunks: list[bytes] | None = None) -> None:
         self.chunks = list(chunks or [])
+        self.sent: list[bytes] = []
 
     def send(self, data: bytes) -> None:
-        pass
+        self.sent.append(data)
 
     def recv(self, timeout_s: float) -> bytes:
         return self.chunks.pop(0) if self.chunks else b""
@@ -313,10 +314,12 @@ SIGNED_SEGMENT = st.one_of(
 
 
 def test_required_signing_rejects_and_counts_every_unsigned_or_forged_frame(tried: dict[str, int]) -> None:
-    """With signing required: unsigned, MAVLink 1, wrongly keyed, altered-signature and replayed frames are
-    rejected and counted (``rejected_unsigned``), never delivered; the genuine signed frames and unsigned
-    RADIO_STATUS (ArduPilot's rule) are delivered in order. A forged frame with a far-future timestamp must
-    not lock the genuine stream out: pymavlink stored its timestamp before checking the signature."""
+    """With signing required: unsigned, MAVLink 1, wrongly keyed and altered-signature frames are rejected and
+    counted (``rejected_unsigned``), never delivered; a replayed frame (a byte-identical copy of an accepted
+    one) and a RADIO_STATUS repeated with its sequence number are dropped as duplicates (``duplicate_frames``);
+    the genuine signed frames and unsigned RADIO_STATUS (ArduPilot's rule) are delivered in order. A forged
+    frame with a far-future timestamp must not lock the genuine stream out: pymavlink stored its timestamp
+    before checking the signature."""
     key = b"\x42" * 32
     n = {"streams": 0, "frames": 0}
 
@@ -324,7 +327,7 @@ def test_required_signing_rejects_and_counts_every_unsigned_or_forged_frame(trie
     @given(st.lists(SIGNED_SEGMENT, max_size=25), st.lists(st.integers(0, 10**6), max_size=8))
     def check(segments: list[tuple[Any, ...]], cuts: list[int]) -> None:
         tx, forger = _Sender(key), _Sender(b"\x13" * 32)
-        data, delivered, rejected, last_good = b"", [], 0, None
+        data, delivered, rejected, duplicated, last_good = b"", [], 0, 0, None
         for seg in segments:
             kind = seg[0]
             if kind == "good":
@@ -333,12 +336,15 @@ def test_required_signing_rejects_and_counts_every_unsigned_or_forged_frame(trie
             elif kind == "radio_status":
                 tx.plain.seq = tx.seq % 256
                 f = bytes(tx.plain.radio_status_encode(200, 190, 100, 40, 45, 0, 0).pack(tx.plain))
-                delivered.append(f)
+                if f in delivered:  # the same bytes with the same sequence number: a duplicate
+                    duplicated += 1
+                else:
+                    delivered.append(f)
             elif kind == "replay":
                 if last_good is None:
                     continue
                 f = last_good
-                rejected += 1
+                duplicated += 1  # a copy of an accepted frame: dropped before the signature check
             else:
                 if kind == "far_future":
                     forger.signer.signing.timestamp = 2**47  # ~ 44 years after 2015
@@ -356,7 +362,8 @@ def test_required_signing_rejects_and_counts_every_unsigned_or_forged_frame(trie
         ep = MavEndpoint(link, system_id=1, component_id=191, signing=SigningKey(key, require=True))
         got = _drain(ep, link)
         assert [bytes(m.get_msgbuf()) for m in got] == delivered + tail
-        assert ep.rejected_unsigned == rejected and ep.bad_frames == 0 and ep.pending_bytes == 0
+        assert ep.rejected_unsigned == rejected and ep.duplicate_frames == duplicated
+        assert ep.bad_frames == 0 and ep.pending_bytes == 0
         n["streams"] += 1
         n["frames"] += len(segments) + len(tail)
 
@@ -366,8 +373,9 @@ def test_required_signing_rejects_and_counts_every_unsigned_or_forged_frame(trie
 
 def test_lost_frames_from_sequence_gaps_per_source(tried: dict[str, int]) -> None:
     """Several sources interleaved, each dropping d frames (0 ≤ d ≤ 254) or repeating one before each frame
-    it sends: ``lost_frames`` is the sum of the d, per source too; a source's first frame and a duplicate
-    count nothing (a gap of 255 would look like a duplicate: it is not generated)."""
+    it sends: ``lost_frames`` is the sum of the d, per source too; a source's first frame counts nothing, and
+    a repeated frame is a duplicate: dropped and counted in ``duplicate_frames``, not as lost (a gap of 255
+    would repeat the last sequence number: it is not generated)."""
     n = {"frames": 0}
     event = st.tuples(st.integers(0, 2), st.one_of(st.just(-1), st.integers(0, 3), st.integers(0, 254)))
 
@@ -378,19 +386,27 @@ def test_lost_frames_from_sequence_gaps_per_source(tried: dict[str, int]) -> Non
         seq = list(first_seq)
         started = [False] * 3
         expected = [0, 0, 0]
+        repeats = 0
+        last = [b"", b"", b""]
         data = b""
-        for src, drop in events:
-            if started[src] and drop >= 0:  # drop frames, then send the next one (-1: the same one again)
+        for k, (src, drop) in enumerate(events):
+            if started[src] and drop < 0:  # the same frame again
+                repeats += 1
+                data += last[src]
+                continue
+            if started[src]:  # drop frames, then send the next one
                 seq[src] = (seq[src] + drop + 1) % 256
                 expected[src] += drop
             started[src] = True
             mav = senders[src]
             mav.seq = seq[src]
-            data += bytes(mav.heartbeat_encode(1, 3, 0, 0, 4).pack(mav))
+            # custom_mode k: each frame differs from every other, also from one 256 sequence numbers earlier
+            last[src] = bytes(mav.heartbeat_encode(1, 3, k, 0, 4).pack(mav))
+            data += last[src]
         link = _FeedLink([data])
         ep = MavEndpoint(link, system_id=1, component_id=191, signing=None)
-        assert len(_drain(ep, link)) == len(events)
-        assert ep.lost_frames == sum(expected)
+        assert len(_drain(ep, link)) == len(events) - repeats
+        assert ep.lost_frames == sum(expected) and ep.duplicate_frames == repeats
         ids = ((1, 1), (1, 191), (7, 1))
         assert ep.lost_by_source == {ids[i]: expected[i] for i in range(3) if expected[i]}
         n["frames"] += len(events)

@@ -128,6 +128,24 @@ def test_port_frames_complete_straddling_partial_and_unknown() -> None:
     assert a.counts == {"complete": 1, "partial": 2, "unknown_name": 1, "late": 0}
 
 
+def test_a_port_value_sent_again_late_never_splits_a_frame() -> None:
+    """A buffering radio sends a port value of the last frame again a second later: late, dropped and counted,
+    whether a frame is open (with that port already in it) or not; after a reboot the times start again."""
+    a = PortAssembler(["P00", "P01"], timeout_s=0.05)
+    a.add(1000, "P00", 1.0, 0.0)
+    a.add(1000, "P01", 2.0, 0.0)
+    a.add(2000, "P00", 3.0, 1.0)
+    assert a.add(1000, "P00", 1.0, 1.0) == []  # the old P00 again, while P00 of 2000 is in the open frame
+    (fr,) = a.add(2000, "P01", 4.0, 1.0)
+    assert fr.complete and list(fr.dp_pa) == [3.0, 4.0]
+    assert a.add(1000, "P01", 2.0, 1.1) == []  # ... and with no frame open
+    assert a.counts == {"complete": 2, "partial": 0, "unknown_name": 0, "late": 2}
+    a.restart()  # the autopilot rebooted: its millis() start again
+    a.add(5, "P00", 5.0, 1.2)
+    (fr,) = a.add(5, "P01", 6.0, 1.2)
+    assert fr.complete and fr.t_s == 0.005
+
+
 def test_imu_increments_integrate_a_constant_rate() -> None:
     integ = ImuIntegrator(50.0)
     w, f = np.array([0.1, -0.2, 0.3]), np.array([0.5, 0.0, -9.8])

@@ -61,7 +61,7 @@ def run_serve(args: argparse.Namespace) -> int:
     if args.summary is not None:
         args.summary.parent.mkdir(parents=True, exist_ok=True)
         args.summary.write_text(json.dumps(summary, indent=2, default=str))
-    print(f"vdm-aero serve: stopped ({signal.Signals(stop['signal']).name if stop['signal'] else 'end'}); "
-          f"state saved to {cfg.state_file}", flush=True)  # fmt: skip
+    # what became of the filter state the service has said itself ("filter state saved to …" or why not)
+    print(f"vdm-aero serve: stopped ({signal.Signals(stop['signal']).name if stop['signal'] else 'end'})", flush=True)
     notify.close()
     return 0

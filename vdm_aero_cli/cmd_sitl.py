@@ -120,7 +120,7 @@ def run_sitl_cmd(args: argparse.Namespace) -> int:
     if not (args.speed >= 0.0 and math.isfinite(args.speed)):
         raise UserInputError("--speed: must be a finite number ≥ 0 (0 = as fast as possible)")
     from sim.flight.world import FlightWorld
-    from sim.sitl.autopilot import AutopilotOptions, run_sitl
+    from sim.sitl.autopilot import AutopilotOptions, DeadReckoningDrift, run_sitl
     from sim.sitl.faults import load_faults
 
     faults = load_faults(args.faults) if args.faults is not None else None
@@ -149,6 +149,8 @@ def run_sitl_cmd(args: argparse.Namespace) -> int:
             options=AutopilotOptions(
                 gcs_recording=args.gcs_recording,
                 faults=faults,
+                # the autopilot's own drift drawn per benchmark seed, not the same draw on every flight
+                drift=DeadReckoningDrift(seed=args.seed if args.nav_scenario else 0),
                 **({"loop_rate_hz": args.loop_rate_hz} if args.loop_rate_hz else {}),
             ),
             on_ready=lambda where: print(f"mock autopilot on {where}, scenario {scenario.name}", flush=True),

@@ -16,6 +16,7 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -126,8 +127,12 @@ def start_service(config: Path, work: Path, *, env: dict[str, str] | None = None
 
 
 def run_service_sitl(run: ServiceRun, work: Path, *, mag_field_ned_ut: tuple[float, float, float],
-                     timeout_s: float = 600.0) -> dict[str, Any]:  # fmt: skip
-    """Fly ``run`` with the service and the mock as processes; returns paths, outage window and the summaries."""
+                     timeout_s: float = 600.0,
+                     relay: Callable[[int, int], Any] | None = None) -> dict[str, Any]:  # fmt: skip
+    """Fly ``run`` with the service and the mock as processes; returns paths, outage window and the summaries.
+
+    ``relay(listen_port, service_port)``: a link between them (an object with ``close()`` and ``stats``), e.g.
+    a test's impaired UDP relay: the mock sends to ``listen_port``, the relay on to the service."""
     from vdm_aero_cli.nav_bench import AFTER_S
 
     work = work.resolve()  # the config's relative paths would be taken relative to the config file
@@ -138,6 +143,7 @@ def run_service_sitl(run: ServiceRun, work: Path, *, mag_field_ned_ut: tuple[flo
     config = write_config(run, work, svc_port, mag_field_ned_ut)
     service = start_service(config, work)
     procs: list[subprocess.Popen[bytes]] = []
+    procs_relay: Any = None
     try:
         ap_port = free_udp_port()
         if run.via_mavproxy:
@@ -147,6 +153,9 @@ def run_service_sitl(run: ServiceRun, work: Path, *, mag_field_ned_ut: tuple[flo
                  f"--out=udpout:127.0.0.1:{svc_port}", "--daemon", "--non-interactive", "--no-state"],
                 cwd=work, stdin=subprocess.DEVNULL, stdout=open(work / "mavproxy.log", "wb"),  # noqa: SIM115
                 stderr=subprocess.STDOUT))  # fmt: skip
+        elif relay is not None:
+            ap_url = f"udpout:127.0.0.1:{ap_port}"
+            procs_relay = relay(ap_port, svc_port)
         else:
             ap_url = f"udpout:127.0.0.1:{svc_port}"
         time.sleep(1.0)  # the service binds its port and loads its models (~1 s) before the autopilot talks
@@ -178,11 +187,13 @@ def run_service_sitl(run: ServiceRun, work: Path, *, mag_field_ned_ut: tuple[flo
         rc = _terminate(service)
         for p in procs:
             _terminate(p)
+        if procs_relay is not None:
+            procs_relay.close()
     summary = json.loads((work / "summary.json").read_text()) if (work / "summary.json").exists() else {}
     return {"config": config, "work": work, "tlog": work / "mock.tlog", "outage": (a, b), "after_s": AFTER_S,
             "service_rc": rc,
             "service": summary, "mock": mock_summary, "wall_s": wall, "service_cpu_pct": 100.0 * cpu / wall,
-            "service_peak_rss_mb": rss,
+            "service_peak_rss_mb": rss, "relay": getattr(procs_relay, "stats", None),
             "serve_log": (work / "serve.log").read_text(errors="replace")}  # fmt: skip
 
 

@@ -28,6 +28,7 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from sim.flight.contract import BaroSample, ImuSample, World, WorldTick
+from sim.sitl.ekf_judge import Ekf3GpsRules, GpsInputJudge
 from sim.sitl.faults import FaultSchedule
 from sim.sitl.link import Link, MavlinkEndpoint, MavlinkMessage, SigningConfig, open_link
 from sim.sitl.streams import (
@@ -43,6 +44,7 @@ from sim.sitl.streams import (
     to_time_usec,
 )
 from sim.sitl.tlog import GpsInputRecord, OdometryRecord, TlogWriter, TruthRecorder
+from vdm_aero._typing import F64Array
 from vdm_aero.errors import UserInputError
 from vdm_aero.geodesy import LocalFrame
 
@@ -99,6 +101,7 @@ class AutopilotOptions:
     faults: FaultSchedule | None = None  # scripted link and sensor faults (sim/sitl/faults.py)
     second_sensors: SecondSensors = field(default_factory=SecondSensors)
     loop_rate_hz: float = PLANE_LOOP_RATE_HZ  # SCHED_LOOP_RATE: no stream is sent faster (streams.py)
+    ekf_rules: Ekf3GpsRules = field(default_factory=Ekf3GpsRules)  # how EKF3 takes GPS_INPUT (ekf_judge.py)
 
 
 class RunSummary(TypedDict):
@@ -114,13 +117,21 @@ class RunSummary(TypedDict):
     bad_frames: int  # CRC or framing errors
     link_active: bool
     link: str
+    # the GPS_INPUT fixes ArduPilot's EKF3 would use, by verdict, and the mock's own horizontal error at each
+    # outage's end with them and without them (sim/sitl/ekf_judge.py)
+    gps_input_verdicts: dict[str, int]
+    outage_end_errors: list[dict[str, float]]
 
 
 class _DeadReckoning:
-    def __init__(self, cfg: DeadReckoningDrift) -> None:
+    """The mock's own estimate error: the drift of :class:`DeadReckoningDrift`, and (``judge``) the same drift
+    with the GPS_INPUT fixes ArduPilot's EKF3 would fuse (sim/sitl/ekf_judge.py)."""
+
+    def __init__(self, cfg: DeadReckoningDrift, judge: GpsInputJudge) -> None:
         self._cfg = cfg
         self._rng = np.random.default_rng(cfg.seed)
-        self.error_ned_m = np.zeros(3)
+        self.judge = judge
+        self.error_ned_m = np.zeros(3)  # without the companion's fixes
         self.error_rate_ned_m_s = np.zeros(3)
         self._v_err = np.zeros(3)
         self._in_outage = False
@@ -131,16 +142,32 @@ class _DeadReckoning:
             if not self._in_outage:
                 sig = np.array([cfg.horizontal_velocity_sigma_m_s] * 2 + [cfg.vertical_velocity_sigma_m_s])
                 self._v_err = sig * self._rng.standard_normal(3)
-            self._v_err = self._v_err + cfg.velocity_random_walk_m_s_per_sqrt_s * math.sqrt(
-                dt_s
-            ) * self._rng.standard_normal(3)
+                self.judge.outage_started(self._v_err)
+            dv = cfg.velocity_random_walk_m_s_per_sqrt_s * math.sqrt(dt_s) * self._rng.standard_normal(3)
+            self._v_err = self._v_err + dv
+            self.judge.propagate(dt_s, dv)
             self.error_ned_m = self.error_ned_m + self._v_err * dt_s
             self.error_rate_ned_m_s = self._v_err
         else:
-            decayed = self.error_ned_m * math.exp(-dt_s / cfg.recovery_tau_s)
+            if self._in_outage:
+                self.judge.outage_ended(self.error_ned_m)
+            factor = math.exp(-dt_s / cfg.recovery_tau_s)
+            decayed = self.error_ned_m * factor
             self.error_rate_ned_m_s = (decayed - self.error_ned_m) / dt_s
             self.error_ned_m = decayed
+            self.judge.decay(factor)
         self._in_outage = outage
+
+    @property
+    def estimate_error_ned_m(self) -> F64Array:
+        """What the mock flies on: horizontally the judge's (with the fixes it took), vertically the drift."""
+        return np.array([*self.judge.p_err_m, self.error_ned_m[2]])
+
+    @property
+    def estimate_error_rate_ned_m_s(self) -> F64Array:
+        if not self._in_outage:
+            return self.error_rate_ned_m_s
+        return np.array([*self.judge.v_err_m_s, self.error_rate_ned_m_s[2]])
 
 
 class _SecondSensors:
@@ -215,7 +242,10 @@ class MockAutopilot:
         home = (world.home_lat_deg, world.home_lon_deg, world.home_alt_m)
         self._frame = LocalFrame(*home)
         self._state = SensorState(home)
-        self._drift = _DeadReckoning(self._options.drift)
+        d = self._options.drift
+        judge = GpsInputJudge(self._options.ekf_rules, velocity_sigma_m_s=d.horizontal_velocity_sigma_m_s,
+                              random_walk_m_s_per_sqrt_s=d.velocity_random_walk_m_s_per_sqrt_s)  # fmt: skip
+        self._drift = _DeadReckoning(d, judge)
         self._second = _SecondSensors(self._options.second_sensors)
         self._stop = threading.Event()
         self._lock = threading.Lock()
@@ -323,6 +353,8 @@ class MockAutopilot:
             bad_frames=self._endpoint.bad_frames,
             link_active=self._active,
             link=self.link.description,
+            gps_input_verdicts=dict(self._drift.judge.verdicts),
+            outage_end_errors=list(self._drift.judge.outage_end),
         )
 
     # ------------------------------------------------------------------------------------ the clock
@@ -380,7 +412,7 @@ class MockAutopilot:
         st.airspeed = tick.airspeed or st.airspeed
         st.servos = tick.servos or st.servos
         self._drift.update(dt, tick.gnss_outage)
-        err = self._drift.error_ned_m
+        err = self._drift.estimate_error_ned_m
         pos_est = truth.pos_ned_m + err
         lat, lon, alt = self._frame.to_geodetic(float(pos_est[0]), float(pos_est[1]), float(pos_est[2]))
         st.estimate = NavEstimate(
@@ -388,7 +420,7 @@ class MockAutopilot:
             lon_deg=lon,
             alt_m=alt,
             pos_ned_m=truth.pos_ned_m + err,
-            v_ned_m_s=truth.v_ned_m_s + self._drift.error_rate_ned_m_s,
+            v_ned_m_s=truth.v_ned_m_s + self._drift.estimate_error_rate_ned_m_s,
             error_ned_m=err.copy(),
             q_nb=truth.q_nb,
             omega_b_rad_s=truth.omega_b_rad_s,
@@ -540,6 +572,14 @@ class MockAutopilot:
         )
         with self._lock:
             self._gps_inputs.append(rec)
+        truth = self._state.truth
+        if truth is not None and self._state.gnss_outage:
+            p = np.asarray(self._frame.to_ned(rec.lat_deg, rec.lon_deg, rec.alt_m), dtype=np.float64).reshape(3)
+            self._drift.judge.gps_input(
+                gps_id=rec.gps_id, fix_type=rec.fix_type, satellites=rec.satellites, ignore_flags=rec.ignore_flags,
+                fix_error_ne_m=(p - truth.pos_ned_m)[:2], vel_error_ne_m_s=(rec.v_ned_m_s - truth.v_ned_m_s)[:2],
+                h_acc_m=rec.h_acc_m, speed_acc_m_s=rec.speed_acc_m_s, airspeed_aiding=self._state.airspeed is not None,
+            )  # fmt: skip
 
     def _record_odometry(self, msg: MavlinkMessage, now_s: float) -> None:
         rec = OdometryRecord(

@@ -1,0 +1,319 @@
+"""The service's MAVLink link as links really are (issue 23, "links as they are"): a router that duplicates
+frames, a signed frame replayed, a second sender on the service's UDP port, the autopilot's TIMESYNC
+requests, and a shutdown that says what it saved.
+
+The endpoint tests feed bytes through a stand-in transport; the service tests run a
+:class:`~firmware_bridge.service.CompanionService` on its ``udpin`` socket, with the autopilot, a second route
+and a stranger as UDP sockets of the test."""
+
+from __future__ import annotations
+
+import io
+import socket
+import threading
+import time
+import types
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from firmware_bridge import endpoint
+from firmware_bridge.endpoint import MavEndpoint, SigningKey
+from tests.test_fault_inputs import _Autopilot, _drain, _FeedLink, _service_config, _warm_service
+
+SIGNING_EPOCH_UNIX_S = 1420070400  # MAVLink signing time: 10 µs ticks since 2015-01-01
+KEY = bytes(range(32))
+AUTOPILOT = (1, 1)
+SERVICE = (1, 191)
+
+
+def _signer(src: tuple[int, int], key: bytes | None = None) -> Any:
+    """A MAVLink 2 codec sending as ``src``; signing its frames with ``key`` when given."""
+    mav = mavlink2.MAVLink(None, srcSystem=src[0], srcComponent=src[1])
+    if key is not None:
+        s = mav.signing
+        s.secret_key, s.sign_outgoing = key, True
+        s.timestamp = int((time.time() - SIGNING_EPOCH_UNIX_S) * 100_000)
+    return mav
+
+
+def _pack(mav: Any, msg: Any) -> bytes:
+    """``msg`` as ``mav`` sends it: packed with its next sequence number (``pack`` alone does not count)."""
+    frame = bytes(msg.pack(mav))
+    mav.seq = (mav.seq + 1) % 256
+    return frame
+
+
+def _vehicle_heartbeat(mav: Any) -> Any:
+    return mav.heartbeat_encode(mavlink2.MAV_TYPE_FIXED_WING, mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 4)
+
+
+# ------------------------------------------------------------------------------------------- duplicates
+def test_a_duplicating_router_delivers_each_frame_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    """300 port values (12 ports, 25 frames: the 8-bit sequence number wraps), each delivered by two routes,
+    the second 0-4 frames later, cut at arbitrary read boundaries: each is decoded once, in order, and the
+    copies are counted as duplicates, not as lost, bad or unsigned frames. Value k and value k + 256 share a
+    sequence number and differ: both are kept. An identical frame after the duplicate window (a 1 Hz HEARTBEAT
+    can repeat its bytes and sequence number a second later) is a new frame too."""
+    ap = _signer(AUTOPILOT)
+    n = 300
+    frames = [
+        _pack(ap, ap.named_value_float_encode(10_000 + 10 * (k // 12), f"P{k % 12:02d}".encode(), float(k)))
+        for k in range(n)
+    ]
+    # (arrival slot, route, frame): route A delivers frame k in slot k, route B in slot k + k % 5
+    events = sorted([(k, 0, f) for k, f in enumerate(frames)] + [(k + k % 5, 1, f) for k, f in enumerate(frames)])
+    data = b"".join(f for _, _, f in events)
+    link = _FeedLink([data[a : a + 97] for a in range(0, len(data), 97)])  # frames cut across reads
+    ep = MavEndpoint(link, system_id=1, component_id=191, signing=None)
+    got = _drain(ep, link)
+    assert [m.value for m in got] == [float(k) for k in range(n)]
+    assert got[0].get_seq() == got[256].get_seq() and got[0].value != got[256].value  # the wrap: both kept
+    assert ep.duplicate_frames == n
+    assert (ep.lost_frames, ep.bad_frames, ep.rejected_unsigned, ep.pending_bytes) == (0, 0, 0, 0)
+
+    # the same bytes again after the window: a genuine frame whose sequence number came round again, kept
+    clock = [1000.0]
+    monkeypatch.setattr(endpoint, "time", types.SimpleNamespace(monotonic=lambda: clock[0], time=time.time))
+    hb_only = _signer((1, 2))
+    hb_only.seq = 7
+    hb = bytes(_vehicle_heartbeat(hb_only).pack(hb_only))
+    link.chunks = [hb, hb]
+    assert len(_drain(ep, link)) == 1 and ep.duplicate_frames == n + 1  # a copy within the window
+    clock[0] += 1.0  # > DUPLICATE_WINDOW_S
+    link.chunks = [hb]
+    assert len(_drain(ep, link)) == 1 and ep.duplicate_frames == n + 1
+
+
+def test_a_replayed_signed_frame_is_a_duplicate_or_a_replay_never_unsigned(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Signing required: a byte-identical copy of an accepted signed frame is counted in ``duplicate_frames``
+    (found before the signature check, which would refuse its timestamp); replayed after the duplicate window
+    it is refused by signing's replay check and counted in ``rejected_replayed``. Only frames without a
+    valid signature are ``rejected_unsigned``."""
+    clock = [50.0]
+    monkeypatch.setattr(endpoint, "time", types.SimpleNamespace(monotonic=lambda: clock[0], time=time.time))
+    link = _FeedLink()
+    ep = MavEndpoint(link, system_id=1, component_id=191, signing=SigningKey(KEY, require=True))
+    ap = _signer(AUTOPILOT, KEY)
+    signed = _pack(ap, ap.named_value_float_encode(1000, b"P00", 12.5))
+    link.chunks = [signed, signed]
+    (msg,) = _drain(ep, link)
+    assert msg.value == 12.5 and msg.get_signed()
+    assert (ep.duplicate_frames, ep.rejected_unsigned, ep.rejected_replayed) == (1, 0, 0)
+    clock[0] += 10.0  # long after the window: no longer a duplicate, a replay
+    link.chunks = [signed]
+    assert _drain(ep, link) == []
+    assert (ep.duplicate_frames, ep.rejected_unsigned, ep.rejected_replayed) == (1, 0, 1)
+    unsigned = _signer(AUTOPILOT)
+    link.chunks = [bytes(unsigned.named_value_float_encode(1000, b"P00", 12.5).pack(unsigned))]
+    assert _drain(ep, link) == []
+    assert (ep.duplicate_frames, ep.rejected_unsigned, ep.rejected_replayed) == (1, 1, 1)
+    assert ep.lost_frames == 0
+
+
+# ------------------------------------------------------------------------------------ the service's link
+@pytest.fixture(scope="module")
+def models(design_deim12: dict[str, Path], tmp_path_factory: pytest.TempPathFactory) -> Any:
+    from vdm_aero.nav.models import NavModels
+
+    cfg = _service_config(tmp_path_factory.mktemp("links-models"), design_deim12, "models", {})
+    return NavModels.load(cfg.design_data, cfg.deim_model, None, cfg.vehicle)
+
+
+@pytest.fixture
+def udp() -> Iterator[dict[str, socket.socket]]:
+    """The autopilot, a second route to the service and a stranger: UDP sockets on the loopback."""
+    socks = {name: socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for name in ("ap", "route2", "stranger")}
+    for s in socks.values():
+        s.bind(("127.0.0.1", 0))
+    yield socks
+    for s in socks.values():
+        s.close()
+
+
+def _discard_queued(sock: socket.socket) -> None:
+    sock.setblocking(False)
+    try:
+        while True:
+            sock.recv(512)
+    except BlockingIOError:
+        return
+
+
+def _wait(cond: Any, timeout_s: float, what: str) -> None:
+    end = time.monotonic() + timeout_s
+    while not cond():
+        assert time.monotonic() < end, f"timed out waiting for {what}"
+        time.sleep(0.01)
+
+
+def test_duplicated_port_values_never_split_a_port_frame(
+    design_deim12: dict[str, Path], models: Any, tmp_path: Path, udp: dict[str, socket.socket]
+) -> None:
+    """A router with two routes to the service's UDP port delivers every port value twice: every port frame
+    is assembled complete, none is closed early as partial, and the copies are counted."""
+    from firmware_bridge.service import CompanionService
+
+    cfg = _service_config(tmp_path, design_deim12, "dup", {})
+    svc = CompanionService(cfg, out=io.StringIO(), models=models)
+    try:
+        to = ("127.0.0.1", svc.transport.local_address[1])
+        ap = _signer(AUTOPILOT)
+        udp["ap"].sendto(_pack(ap, _vehicle_heartbeat(ap)), to)
+        n_frames = 20
+        for j in range(n_frames):
+            for name in svc.port_names:
+                f = _pack(ap, ap.named_value_float_encode(20_000 + 10 * j, name.encode(), -50.0 + j))
+                udp["ap"].sendto(f, to)
+                udp["route2"].sendto(f, to)
+        got, expected = 0, 1 + n_frames * len(svc.port_names)
+        end = time.monotonic() + 5.0
+        while time.monotonic() < end:  # everything sent, and 0.3 s more for any copy still on its way
+            msgs = svc.ep.poll(0.05)
+            for m in msgs:
+                svc._dispatch(m, svc.ep.received_at)
+            got += len(msgs)
+            if got >= expected:
+                end = min(end, time.monotonic() + 0.3)
+        counts = svc.assembler.counts
+        assert (counts["complete"], counts["partial"]) == (n_frames, 0), counts
+        assert got == expected
+        assert svc.ep.duplicate_frames == n_frames * len(svc.port_names)
+        s = svc.summary()
+        assert s["duplicate_frames"] == svc.ep.duplicate_frames and s["lost_frames"] == 0
+    finally:
+        svc.transport.close()
+
+
+@pytest.mark.parametrize("signing", [False, True], ids=["unsigned-link", "signing-required"])
+def test_outputs_go_only_to_the_autopilots_address(
+    design_deim12: dict[str, Path], models: Any, tmp_path: Path, udp: dict[str, socket.socket], signing: bool
+) -> None:
+    """The autopilot is heard from one UDP port; then a stranger sends from another: a ground station's
+    HEARTBEAT, a radio's RADIO_STATUS (unsigned: signing allows it, as ArduPilot does), a NAMED_VALUE_FLOAT
+    of another system and a vehicle HEARTBEAT of component 2 claiming to be the autopilot — with signing
+    required, all but the RADIO_STATUS signed with the link's key, as a ground station on the link has it.
+    The service's next outputs still go to the autopilot's address; nothing is ever sent to the stranger."""
+    from firmware_bridge.service import CompanionService
+
+    edits: dict[str, Any] = {}
+    key = None
+    if signing:
+        key_file = tmp_path / "key"
+        key_file.write_text(KEY.hex())
+        edits = {"signing.key_file": str(key_file), "signing.require": True}
+        key = KEY
+    cfg = _service_config(tmp_path, design_deim12, "peer", edits)
+    svc = CompanionService(cfg, out=io.StringIO(), models=models)
+    to = ("127.0.0.1", svc.transport.local_address[1])
+    stop = threading.Event()
+    worker = threading.Thread(target=svc.run, args=(stop.is_set,), daemon=True)
+    worker.start()
+    try:
+        ap_sock, stranger = udp["ap"], udp["stranger"]
+        ap = _signer(AUTOPILOT, key)
+        ap_sock.sendto(_pack(ap, _vehicle_heartbeat(ap)), to)
+        ap_sock.settimeout(3.0)
+        assert ap_sock.recv(512)  # the service answers the autopilot (stream requests, HEARTBEAT)
+        _wait(lambda: svc.decoder.autopilot == AUTOPILOT, 2.0, "the service to identify the autopilot")
+
+        before = sum(svc.stats.received.values()) + svc.ep.rejected_unsigned
+        gcs, radio, other, comp2 = (
+            _signer((255, 190), key),
+            _signer((51, 68)),
+            _signer((2, 1), key),
+            _signer((1, 2), key),
+        )
+        for f in (
+            _pack(gcs, gcs.heartbeat_encode(mavlink2.MAV_TYPE_GCS, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, 4)),
+            _pack(radio, radio.radio_status_encode(200, 190, 100, 40, 45, 0, 0)),
+            _pack(other, other.named_value_float_encode(1000, b"P00", 99.0)),
+            _pack(comp2, _vehicle_heartbeat(comp2)),
+        ):
+            stranger.sendto(f, to)
+        _wait(lambda: sum(svc.stats.received.values()) + svc.ep.rejected_unsigned >= before + 4, 3.0,
+              "the service to read the stranger's frames")  # fmt: skip
+        assert svc.stats.received.get("RADIO_STATUS") == 1 and svc.ep.rejected_unsigned == 0
+
+        _discard_queued(ap_sock)  # what the service sent before the stranger spoke
+        ap_sock.settimeout(2.0)  # the next output: at least the 1 Hz HEARTBEAT
+        rx = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+        (msg,) = rx.parse_buffer(ap_sock.recv(512))
+        assert (msg.get_srcSystem(), msg.get_srcComponent()) == SERVICE
+        stranger.settimeout(0.2)
+        with pytest.raises(TimeoutError):
+            stranger.recv(512)
+    finally:
+        stop.set()
+        worker.join(5.0)
+    assert not worker.is_alive()
+
+
+# ------------------------------------------------------------------------------------------------ TIMESYNC
+def test_a_timesync_request_of_the_autopilot_is_answered(
+    design_deim12: dict[str, Path], models: Any, tmp_path: Path
+) -> None:
+    """TIMESYNC with tc1 = 0 from the autopilot (ArduPilot and PX4 send these) is answered: tc1 our monotonic
+    clock [ns], ts1 echoed. A request of another component is not; the autopilot's reply to our own request
+    (tc1 ≠ 0) still sets the clock offset and is not answered."""
+    from firmware_bridge.service import CompanionService
+
+    cfg = _service_config(tmp_path, design_deim12, "timesync", {})
+    svc = CompanionService(cfg, out=io.StringIO(), models=models)
+    link = _FeedLink()
+    svc.ep.transport = link  # what the endpoint sends, kept
+    try:
+        ap = _Autopilot()
+        svc._dispatch(ap(_vehicle_heartbeat(ap.tx)), 1.0)
+        ts1 = 123_456_789_000
+        t0 = time.monotonic_ns()
+        svc._dispatch(ap(ap.tx.timesync_encode(0, ts1)), 1.1)
+        t1 = time.monotonic_ns()
+        rx = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+        (reply,) = [m for m in rx.parse_buffer(b"".join(link.sent)) or [] if m.get_type() == "TIMESYNC"]
+        assert reply.ts1 == ts1 and t0 <= reply.tc1 <= t1
+        assert (reply.get_srcSystem(), reply.get_srcComponent()) == SERVICE
+        n = len(link.sent)
+        svc._dispatch(ap(ap.tx.timesync_encode(0, ts1), src=(255, 190)), 1.2)  # a ground station's request
+        ours = time.monotonic_ns() - 5_000_000  # our request, sent 5 ms ago
+        svc._dispatch(ap(ap.tx.timesync_encode(42_000_000_000, ours)), 1.3)
+        assert len(link.sent) == n
+        assert svc.clock.offset_s is not None and svc.clock.offset_s == pytest.approx(42.0 - ours * 1e-9, abs=0.1)
+    finally:
+        svc.transport.close()
+
+
+# ---------------------------------------------------------------------------------------- the state file
+def test_shutdown_says_saved_only_when_the_state_file_was_written(
+    design_deim12: dict[str, Path], models: Any, tmp_path: Path
+) -> None:
+    """At shutdown the service says what happened to the filter state: nothing to save when the filter
+    never initialised (no file written), saved when it was written, NOT saved when the write failed."""
+    from firmware_bridge.service import CompanionService
+
+    cfg = _service_config(tmp_path, design_deim12, "never", {})
+    log = io.StringIO()
+    svc = CompanionService(cfg, out=log, models=models)
+    svc.run(lambda: True)
+    out = log.getvalue()
+    assert "no filter state to save (the filter is not initialised)" in out and "state saved" not in out
+    assert not cfg.state_file.exists() and svc.summary()["state_saves"] == 0
+
+    results = {}
+    for case in ("writable", "blocked"):
+        cfg = _service_config(tmp_path, design_deim12, case, {})
+        svc = _warm_service(cfg, models, _Autopilot())
+        assert svc.filter is not None and svc.filter.initialised
+        if case == "blocked":  # the state directory is a file: the write fails
+            (tmp_path / "not-a-dir").write_text("")
+            svc.store.path = tmp_path / "not-a-dir" / "state.npz"
+        svc.run(lambda: True)
+        results[case] = (svc.out.getvalue(), svc.store.path, svc.summary()["state_saves"])
+    out, path, saves = results["writable"]
+    assert f"vdm-aero serve: filter state saved to {path}" in out and path.is_file() and saves == 1
+    out, path, saves = results["blocked"]
+    assert "filter state NOT saved to" in out and "filter state saved" not in out and saves == 0
+    assert not path.exists()
