@@ -82,6 +82,7 @@ class ServiceStats:
     handler_errors: dict[str, int] = field(default_factory=dict)
     stream_requests: int = 0
     command_acks: dict[str, int] = field(default_factory=dict)
+    commands_refused: int = 0  # COMMAND_LONG/INT addressed to us, answered MAV_RESULT_UNSUPPORTED
     solutions_sent: int = 0
     named_values_sent: int = 0
     filter_resets: int = 0
@@ -164,6 +165,8 @@ class CompanionService:
         self._handlers: dict[str, Callable[[MavlinkMessage, float], None]] = {
             "TIMESYNC": self._on_timesync,
             "COMMAND_ACK": self._on_command_ack,
+            "COMMAND_LONG": self._on_command,
+            "COMMAND_INT": self._on_command,
         }
 
     # ---------------------------------------------------------------------------------------- loop
@@ -425,6 +428,15 @@ class CompanionService:
         else:
             self.ep.send(self.ep.mav.timesync_encode(time.monotonic_ns(), int(msg.ts1)))
 
+    def _on_command(self, msg: MavlinkMessage, t_in: float) -> None:
+        """A command addressed to us: the MAVLink command protocol wants an answer, and the service carries out
+        none (nothing can be injected): MAV_RESULT_UNSUPPORTED, to the sender (commands to others are not ours)."""
+        if (msg.target_system, msg.target_component) != (self.cfg.system_id, self.cfg.component_id):
+            return
+        self.stats.commands_refused += 1
+        self.ep.send(self.ep.mav.command_ack_encode(msg.command, mavlink2.MAV_RESULT_UNSUPPORTED, 0, 0,
+                                                    msg.get_srcSystem(), msg.get_srcComponent()))  # fmt: skip
+
     def _on_command_ack(self, msg: MavlinkMessage, t_in: float) -> None:
         key = f"{msg.command}:{msg.result}"
         self.stats.command_acks[key] = self.stats.command_acks.get(key, 0) + 1
@@ -653,6 +665,7 @@ class CompanionService:
             "bad_frames": self.ep.bad_frames,
             "port_frames": dict(self.assembler.counts),
             "stream_requests": self.stats.stream_requests,
+            "commands_refused": self.stats.commands_refused,
             "stream_caps_hz": dict(self.stream_caps_hz),
             "solutions_sent": self.stats.solutions_sent,
             "named_values_sent": self.stats.named_values_sent,

@@ -286,6 +286,35 @@ def test_a_timesync_request_of_the_autopilot_is_answered(
         svc.transport.close()
 
 
+def test_a_command_to_the_service_is_answered_unsupported(design_deim12: dict[str, Path], models: Any,
+                                                          tmp_path: Path) -> None:  # fmt: skip
+    """A COMMAND_LONG or COMMAND_INT addressed to the service (system 1, component 191) gets a COMMAND_ACK
+    MAV_RESULT_UNSUPPORTED back to its sender (the service carries out no command); one to another
+    component gets nothing."""
+    from firmware_bridge.service import CompanionService
+
+    cfg = _service_config(tmp_path, design_deim12, "commands", {})
+    svc = CompanionService(cfg, out=io.StringIO(), models=models)
+    link = _FeedLink()
+    svc.ep.transport = link
+    try:
+        ap = _Autopilot()
+        reboot = mavlink2.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN
+        svc._dispatch(ap(ap.tx.command_long_encode(1, 191, reboot, 0, 1, 0, 0, 0, 0, 0, 0), src=(255, 190)), 1.0)
+        svc._dispatch(ap(ap.tx.command_int_encode(1, 191, 0, mavlink2.MAV_CMD_DO_SET_MODE, 0, 0, 0, 0, 0, 0,
+                                                  0, 0, 0)), 1.1)  # fmt: skip
+        svc._dispatch(ap(ap.tx.command_long_encode(1, 1, reboot, 0, 1, 0, 0, 0, 0, 0, 0), src=(255, 190)), 1.2)
+        rx = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+        acks = [m for m in rx.parse_buffer(b"".join(link.sent)) or [] if m.get_type() == "COMMAND_ACK"]
+        assert [(a.command, a.result, a.target_system, a.target_component) for a in acks] == [
+            (reboot, mavlink2.MAV_RESULT_UNSUPPORTED, 255, 190),
+            (mavlink2.MAV_CMD_DO_SET_MODE, mavlink2.MAV_RESULT_UNSUPPORTED, 1, 1),
+        ]
+        assert svc.summary()["commands_refused"] == 2
+    finally:
+        svc.transport.close()
+
+
 # ---------------------------------------------------------------------------------------- the state file
 def test_shutdown_says_saved_only_when_the_state_file_was_written(
     design_deim12: dict[str, Path], models: Any, tmp_path: Path
