@@ -347,12 +347,13 @@ class MavlinkDecoder:
         if use is None:
             self.imu_switches.append(kind)
             self.sink.on_imu_source(kind)
-        s: units.ImuSample = CONVERTERS[kind](msg)
         last = self._stamps.get(kind)
+        if last is not None and stamp == last:
+            return not self._repeat(kind, stamp)  # False: the same sample again, counted
+        s: units.ImuSample = CONVERTERS[kind](msg)
         if last is not None and stamp < last and not self._reboot_run(kind, s.t_s):
             return False  # a stale frame (discarded, counted), or a reboot not confirmed yet
-        if self._repeat(kind, stamp):
-            return False
+        self._stamps[kind] = stamp
         self._older_run = None
         if self.clock.observe_boot_s(s.t_s):
             if self.assembler is not None:

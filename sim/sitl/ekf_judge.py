@@ -21,7 +21,9 @@ without it. Rules, from ArduPilot's sources:
 
 The estimate's error is a linear model per horizontal axis (position and velocity error; the velocity a
 random walk, :class:`DeadReckoningDrift`), so its Kalman filter here is exact for the drift: what remains
-unmodelled is what the service's fixes get wrong, and that is what is judged. Vertical is not judged.
+unmodelled is what the service's fixes get wrong, and that is what is judged. Not modelled: the vertical, the
+5 s decaying envelope readGpsData puts on the reported accuracies, and the fix's lag (``GPSn_DELAY_MS``): each fix
+is compared with the truth when it arrives.
 """
 
 from __future__ import annotations
@@ -31,16 +33,17 @@ from collections import Counter
 from dataclasses import dataclass
 
 import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from vdm_aero._typing import F64Array
 
 __all__ = ["Ekf3GpsRules", "GpsInputJudge"]
 
-GPS_FIX_3D = 3  # MAVLink GPS_FIX_TYPE_3D_FIX
-GPS_FIX_2D = 2
-GPS_INPUT_IGNORE_VEL_HORIZ = 2  # GPS_INPUT_IGNORE_FLAG_VEL_HORIZ
-GPS_INPUT_IGNORE_HORIZ_ACC = 16  # GPS_INPUT_IGNORE_FLAG_HORIZONTAL_ACCURACY
-GPS_INPUT_IGNORE_SPEED_ACC = 8  # GPS_INPUT_IGNORE_FLAG_SPEED_ACCURACY
+GPS_FIX_3D = mavlink2.GPS_FIX_TYPE_3D_FIX
+GPS_FIX_2D = mavlink2.GPS_FIX_TYPE_2D_FIX
+GPS_INPUT_IGNORE_VEL_HORIZ = mavlink2.GPS_INPUT_IGNORE_FLAG_VEL_HORIZ
+GPS_INPUT_IGNORE_HORIZ_ACC = mavlink2.GPS_INPUT_IGNORE_FLAG_HORIZONTAL_ACCURACY
+GPS_INPUT_IGNORE_SPEED_ACC = mavlink2.GPS_INPUT_IGNORE_FLAG_SPEED_ACCURACY
 POS_ACC_MAX_M = 100.0  # readGpsData's clamp of the horizontal accuracy
 SPEED_ACC_MAX_M_S = 50.0  # ... and of the speed accuracy
 
