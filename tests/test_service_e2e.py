@@ -125,7 +125,9 @@ def test_autopilot_reboot_debug_array_ports_and_sd_notify(design_deim12: dict[st
     reader.start()
     service = start_service(config, work, env={"NOTIFY_SOCKET": str(work / "notify.sock"), "WATCHDOG_USEC": "1000000"})
     try:
-        time.sleep(1.0)
+        deadline = time.monotonic() + 120.0  # the autopilot boots once the service said READY=1, as systemd orders
+        while not msgs and service.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
         for k in range(2):  # boot, fly 40 s, power off; boot again
             cmd = [
                 *VDM_AERO,

@@ -311,6 +311,22 @@ def test_set_message_interval_enables_disables_and_rejects() -> None:
     assert "VFR_HUD" not in summary["sent"]
 
 
+def test_a_request_for_the_rate_a_stream_has_keeps_its_phase() -> None:
+    """As ArduPilot's deferred-message buckets do: asking again for a stream's interval leaves its send times where
+    they were (a late companion request does not change what the autopilot sends); a new interval starts now."""
+    from sim.sitl.streams import StreamScheduler
+
+    sched = StreamScheduler({"GPS_RAW_INT": 5.0}, loop_rate_hz=400.0)
+    dt = 0.0025
+    sent = [k * dt for k in range(400) if "GPS_RAW_INT" in sched.due(k * dt)]
+    sched.set_rate("GPS_RAW_INT", 5.0, now_s=1.0 + 3 * dt)  # the same rate, asked mid-interval
+    sent += [k * dt for k in range(400, 800) if "GPS_RAW_INT" in sched.due(k * dt)]
+    assert np.allclose(np.diff(sent), 0.2) and sent[0] == 0.0
+    sched.set_rate("GPS_RAW_INT", 10.0, now_s=2.0 + 3 * dt)  # a new rate: from the request on
+    later = [k * dt for k in range(800, 1200) if "GPS_RAW_INT" in sched.due(k * dt)]
+    assert later[0] == pytest.approx(2.0 + 3 * dt) and np.allclose(np.diff(later), 0.1)
+
+
 def test_no_stream_is_faster_than_the_loop_rate() -> None:
     """A faster loop (SCHED_LOOP_RATE raised, as on a QuadPlane) lets the 100 Hz asked for through."""
     pair = MemoryLinkPair()

@@ -35,6 +35,7 @@ import yaml
 from sim.sitl.faults import Fault, rogue_sender
 from vdm_aero_cli.service_sitl import (
     VDM_AERO,
+    NotifyListener,
     ServiceRun,
     ServiceTrack,
     _cpu_s,
@@ -69,7 +70,8 @@ class _Supervisor:
 
     def __init__(self, config: Path, work: Path) -> None:
         self.config, self.work = config, work
-        self.proc = start_service(config, work, unprivileged=True)
+        self.notify = NotifyListener()  # its notification socket, read all the time
+        self.proc = start_service(config, work, env=self.notify.env, unprivileged=True)
         self.pids = [self.proc.pid]
         self.restarts = 0
         self.exit_codes: list[int] = []
@@ -78,7 +80,7 @@ class _Supervisor:
         self.proc.send_signal(signal.SIGKILL)
         self.exit_codes.append(self.proc.wait())
         time.sleep(RESTART_S)
-        self.proc = start_service(self.config, self.work, unprivileged=True)
+        self.proc = start_service(self.config, self.work, env=self.notify.env, unprivileged=True)
         self.pids.append(self.proc.pid)
         self.restarts += 1
 
@@ -190,7 +192,7 @@ def fly_faults(flight: FaultFlight, work: Path, *, mag_field_ned_ut: tuple[float
     sampler_stop = threading.Event()
     events: list[tuple[float, str]] = []
     try:
-        time.sleep(1.0)  # the service binds its port and loads its models before the autopilot talks
+        sup.notify.wait_ready(sup.proc)  # the port bound and the models loaded before the autopilot talks
         caps = capabilities(sup.proc.pid)
         cmd = [*VDM_AERO, "sitl", "--nav-scenario", run.scenario, "--seed", str(run.seed), "--outage-s",
                f"{run.outage_s:g}", "--ports-model", str(run.deim), "--connect", f"udpout:127.0.0.1:{port}",
@@ -249,6 +251,7 @@ def fly_faults(flight: FaultFlight, work: Path, *, mag_field_ned_ut: tuple[float
         if rogue_thread is not None:
             rogue_thread.join()
         rc = _terminate(sup.proc)
+        sup.notify.close()
         final_state = (state / "filter-state.npz").exists()
         nav_rows = _nav_rows(state)
         if mounted:

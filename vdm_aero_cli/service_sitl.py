@@ -15,6 +15,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -126,6 +127,64 @@ def start_service(config: Path, work: Path, *, env: dict[str, str] | None = None
     )
 
 
+class NotifyListener:
+    """The service's sd_notify(3) socket, held as systemd holds it for a ``Type=notify`` unit: read all the time
+    (its queue holds only 10 datagrams), so that a harness starts the autopilot once the service said
+    ``READY=1`` (port bound, models loaded) rather than after a guessed sleep. A service slower to start than
+    the sleep (a loaded CI machine) missed the flight's first seconds and asked for its streams late, and the
+    flight it navigated was no longer the benchmark's. An abstract-namespace socket: no path-length limit."""
+
+    def __init__(self) -> None:
+        name = f"vdm-aero-sitl-{os.getpid()}-{id(self):x}"
+        self.env = {"NOTIFY_SOCKET": "@" + name}
+        self.messages: list[str] = []
+        self._ready = threading.Event()
+        self._done = threading.Event()
+        self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        self._sock.bind("\0" + name)
+        self._sock.settimeout(0.1)
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        while not self._done.is_set():
+            try:
+                msg = self._sock.recv(4096).decode(errors="replace")
+            except (TimeoutError, OSError):
+                continue
+            self.messages.append(msg)
+            if msg.startswith("READY=1"):
+                self._ready.set()
+
+    def wait_ready(self, proc: subprocess.Popen[bytes], timeout_s: float = 120.0) -> None:
+        """Until ``proc`` said READY=1; RuntimeError (with the journal's tail) if it exits or times out."""
+        deadline = time.monotonic() + timeout_s
+        while not self._ready.wait(0.1):
+            if proc.poll() is not None or time.monotonic() > deadline:
+                rc = proc.returncode
+                raise RuntimeError(f"the service {f'exited with {rc}' if rc is not None else 'was not ready'}")
+        self._ready.clear()  # the next READY=1 is a restart's
+
+    def close(self) -> None:
+        self._done.set()
+        self._reader.join()
+        self._sock.close()
+
+
+def autopilot_stream_args(config: Path) -> list[str]:
+    """``--stream-rate`` arguments that set the mock's stream parameters (ArduPilot's SRn_ / SET_MESSAGE_INTERVAL
+    kept in its parameters) to what the service will ask for, as a companion's telemetry port is commonly set
+    up: the flight the mock flies and records is then the same whenever the service's requests arrive, and the
+    requests themselves change nothing (a request for the rate a stream has keeps its phase, as ArduPilot's
+    deferred-message buckets do). The service's request path on a default-rate autopilot is tested on its own
+    (tests/test_service_e2e.py reboot, tests/test_service_streams.py)."""
+    from firmware_bridge.config import load_config
+    from sim.sitl.streams import message_spec
+
+    streams = {k: v for k, v in load_config(config).streams.items() if message_spec(k) is not None}
+    return [a for name, hz in streams.items() for a in ("--stream-rate", f"{name}={hz:g}")]
+
+
 def run_service_sitl(run: ServiceRun, work: Path, *, mag_field_ned_ut: tuple[float, float, float],
                      timeout_s: float = 600.0,
                      relay: Callable[[int, int], Any] | None = None) -> dict[str, Any]:  # fmt: skip
@@ -141,10 +200,12 @@ def run_service_sitl(run: ServiceRun, work: Path, *, mag_field_ned_ut: tuple[flo
     work.mkdir(parents=True, exist_ok=True)
     svc_port = free_udp_port()
     config = write_config(run, work, svc_port, mag_field_ned_ut)
-    service = start_service(config, work)
+    notify = NotifyListener()
+    service = start_service(config, work, env=notify.env)
     procs: list[subprocess.Popen[bytes]] = []
     procs_relay: Any = None
     try:
+        notify.wait_ready(service)
         ap_port = free_udp_port()
         if run.via_mavproxy:
             ap_url = f"udpin:127.0.0.1:{ap_port}"
@@ -158,11 +219,10 @@ def run_service_sitl(run: ServiceRun, work: Path, *, mag_field_ned_ut: tuple[flo
             procs_relay = relay(ap_port, svc_port)
         else:
             ap_url = f"udpout:127.0.0.1:{svc_port}"
-        time.sleep(1.0)  # the service binds its port and loads its models (~1 s) before the autopilot talks
         cmd = [*VDM_AERO, "sitl", "--nav-scenario", run.scenario, "--seed", str(run.seed), "--outage-s",
                f"{run.outage_s:g}", "--ports-model", str(run.deim), "--connect", ap_url, "--speed", f"{run.speed:g}",
                "--truth", str(work / "truth.npz"), "--tlog", str(work / "mock.tlog"), "--loop-rate-hz",
-               f"{run.loop_rate_hz:g}", "--json"]  # fmt: skip
+               f"{run.loop_rate_hz:g}", "--json", *autopilot_stream_args(config)]  # fmt: skip
         if run.ports_source == "debug_float_array":
             cmd.append("--ports-debug-array")
         if run.stop_after_s is not None:
@@ -189,6 +249,7 @@ def run_service_sitl(run: ServiceRun, work: Path, *, mag_field_ned_ut: tuple[flo
             _terminate(p)
         if procs_relay is not None:
             procs_relay.close()
+        notify.close()
     summary = json.loads((work / "summary.json").read_text()) if (work / "summary.json").exists() else {}
     return {"config": config, "work": work, "tlog": work / "mock.tlog", "outage": (a, b), "after_s": AFTER_S,
             "service_rc": rc,

@@ -179,7 +179,12 @@ class StreamScheduler:
             self._interval_s.pop(name, None)
             self._next_s.pop(name, None)
             return
-        self._interval_s[name] = 1.0 / min(hz, self.loop_rate_hz)
+        interval = 1.0 / min(hz, self.loop_rate_hz)
+        if self._interval_s.get(name) == interval:
+            # the rate it has: it keeps its phase (GCS_Common.cpp, GCS_MAVLINK::set_ap_message_interval: a message
+            # already in the bucket of that interval "don't need to move it")
+            return
+        self._interval_s[name] = interval
         self._next_s[name] = now_s
 
     def set_interval(self, name: str, interval_s: float, *, now_s: float) -> None:
