@@ -928,3 +928,24 @@ def test_memmap_writer_rejects_bad_arguments(tmp_path: Path) -> None:
         with pytest.raises(DatasetError, match="cannot write a block of shape"):
             w.write_rows(0, np.zeros((1, 4)))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["foreign"]
+
+
+@pytest.mark.parametrize("order", ["C", "F"])
+def test_read_columns_matches_the_whole_array_and_names_a_bad_file(tmp_path: Path, order: str) -> None:
+    """The port columns read in row chunks equal the columns of the loaded array, whatever the chunk and the
+    memory order; a truncated file or a column out of range is one error naming the file."""
+    from vdm_aero.dataset import read_columns
+
+    rng = np.random.default_rng(4)
+    a = np.asarray(rng.normal(size=(37, 11)).astype(np.float32), order=order)
+    path = tmp_path / "cp.npy"
+    np.save(path, a)
+    cols = np.array([10, 0, 3, 3])
+    for chunk in (1, 5, 100):
+        got = read_columns(path, cols, chunk_rows=chunk)
+        assert got.dtype == np.float32 and np.array_equal(got, a[:, cols])
+    with pytest.raises(DatasetError, match=r"cp\.npy: column 11 out of range"):
+        read_columns(path, np.array([11]))
+    path.write_bytes(path.read_bytes()[:-40])
+    with pytest.raises(DatasetError, match=r"cp\.npy: truncated"):
+        read_columns(path, cols)

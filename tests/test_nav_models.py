@@ -111,6 +111,32 @@ def test_ins_transition_matches_finite_differences() -> None:
         np.testing.assert_allclose(phi[:, i], col, atol=2e-5, err_msg=f"column {i}")
 
 
+def test_ins_transition_is_the_second_order_series_of_its_error_dynamics() -> None:
+    """The block-by-block Φ equals I + FΔt + ½(FΔt)² with F assembled densely from the error dynamics of the
+    module docstring (δv̇ = −Ĉ[f×]δθ − Ĉδb_a, δθ̇ = −[ω×]δθ − δb_g, Gauss–Markov GNSS error and gust)."""
+    from vdm_aero.nav.ins import skew
+    from vdm_aero.nav.state import IDX
+    from vdm_aero.rotation import dcm_from_quat, quat_exp, quat_multiply
+
+    rng = np.random.default_rng(12)
+    ins = InsProcess()
+    for dt in (0.02, 0.0025, 0.02):  # Δt changes and comes back: the cached diagonal follows it
+        x = _state(rng)
+        u = ImuIncrement(rng.normal(0.0, 0.5, 3) * dt, (np.array([0.0, 0.0, -9.8]) + rng.normal(0, 2, 3)) * dt, dt)
+        f_b, w_b = u.dvel_b / dt - x.b_accel_b, u.dtheta_b / dt - x.b_gyro_b
+        c = dcm_from_quat(quat_multiply(x.q_nb, quat_exp(0.5 * w_b * dt)))
+        f = np.zeros((N_ERR, N_ERR))
+        f[IDX["p"], IDX["v"]] = np.eye(3)
+        f[IDX["v"], IDX["theta"]] = -c @ skew(f_b)
+        f[IDX["v"], IDX["ba"]] = -c
+        f[IDX["theta"], IDX["theta"]] = -skew(w_b)
+        f[IDX["theta"], IDX["bg"]] = -np.eye(3)
+        f[IDX["gnss"], IDX["gnss"]] = -np.eye(3) / ins.noise_densities.gnss_tau_s
+        f[IDX["gust"], IDX["gust"]] = -np.diag(1.0 / np.asarray(ins.noise_densities.gust_tau_s))
+        fdt = f * dt
+        np.testing.assert_allclose(ins.transition(x, u), np.eye(N_ERR) + fdt + 0.5 * fdt @ fdt, rtol=0, atol=1e-13)
+
+
 def test_gate_rejects_a_300_m_jump_and_accepts_a_normal_fix() -> None:
     p0 = np.diag(np.full(N_ERR, 1.0))
     eng = EkfEngine(p0)

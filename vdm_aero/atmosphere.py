@@ -6,6 +6,7 @@ barometer and a temperature). Altitudes are geopotential (≈ geometric below a 
 
 from __future__ import annotations
 
+import math
 from typing import Final, TypeVar
 
 import numpy as np
@@ -62,6 +63,9 @@ def outside_air_temperature_c(airspeed_sensor_c: X, board_c: X) -> X:
     :data:`AIRSPEED_TEMPERATURE_RANGE_C`; NaN: no reading), else the board's (IMU or barometer die) clamped
     to :data:`BOARD_TEMPERATURE_CLAMP_C`. Element-wise for arrays."""
     lo, hi = AIRSPEED_TEMPERATURE_RANGE_C
+    if isinstance(airspeed_sensor_c, float) and isinstance(board_c, float):  # the filter's every IMU step
+        ok = math.isfinite(airspeed_sensor_c) and lo <= airspeed_sensor_c <= hi
+        return airspeed_sensor_c if ok else min(board_c, BOARD_TEMPERATURE_CLAMP_C)
     a = np.asarray(airspeed_sensor_c, dtype=np.float64)
     with np.errstate(invalid="ignore"):
         ok = np.isfinite(a) & (a >= lo) & (a <= hi)

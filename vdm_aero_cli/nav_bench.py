@@ -40,7 +40,7 @@ import numpy as np
 from vdm_aero._typing import F64Array
 from vdm_aero.flightlog import SensorLog
 from vdm_aero.geodesy import LocalFrame
-from vdm_aero.nav.filter import ABLATIONS, MODES, NavConfig, NavFilter
+from vdm_aero.nav.filter import ABLATIONS, MODES, NavConfig, NavFilter, reads_ports
 from vdm_aero.nav.models import NavModels
 from vdm_aero.nav.stream import LogRunner, NavStream, SolutionRecorder
 from vdm_aero.rotation import dcm_from_quat, euler_from_quat, quat_log, quat_multiply
@@ -291,8 +291,9 @@ def run_filters(
                             mag_field_ned_ut=np.asarray(meta["mag_field_ned_t"]) * 1e6)  # fmt: skip
     stream = NavStream.from_log(log, nav.vehicle, frame, filter_rate_hz=cfg.filter_rate_hz,
                                 gnss_latency_s=cfg.gnss_latency_s)  # fmt: skip
-    fe = PortFrontEnd(nav.pressure_model, dict(nav.models), range_pa=500.0, noise_pa=0.2) if len(
-        sensors["ports_t_s"]) else None  # fmt: skip
+    fe = None  # the port front end only where a mode reads the ports (a filter's speed is its own)
+    if len(sensors["ports_t_s"]) and any(reads_ports(m) for m in modes):
+        fe = PortFrontEnd(nav.pressure_model, dict(nav.models), range_pa=500.0, noise_pa=0.2)
     filters = {m: NavFilter(m, cfg, nav.derivatives) for m in modes}
     runner = LogRunner(stream, filters, fe)
     rec: dict[str, list[tuple[Any, ...]]] = {m: [] for m in modes}

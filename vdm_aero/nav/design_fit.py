@@ -16,7 +16,7 @@ from typing import Final
 import numpy as np
 
 from vdm_aero._typing import BoolArray, F64Array
-from vdm_aero.dataset import AIRFRAME_STATE_COLUMNS, STATES_FILE, Dataset, load_dataset
+from vdm_aero.dataset import AIRFRAME_STATE_COLUMNS, STATES_FILE, Dataset, load_dataset, read_columns
 from vdm_aero.errors import DatasetError
 
 __all__ = ["CRUISE_ENVELOPE", "DesignFlightData", "PortPressureModel", "StabilityDerivatives", "cruise_rows"]
@@ -38,7 +38,9 @@ class DesignFlightData:
 
     @classmethod
     def load(cls, path: str | Path, port_names: tuple[str, ...]) -> DesignFlightData:
-        ds: Dataset = load_dataset(path)
+        # cp is read as its port columns only, and checked there (the fits use nothing else of it): a full
+        # check or a mapped gather touches all of cp.npy, the service's peak memory (read_columns)
+        ds: Dataset = load_dataset(path, check_values=False)
         states_path = Path(path) / STATES_FILE
         if not states_path.is_file():
             raise DatasetError(
@@ -57,9 +59,13 @@ class DesignFlightData:
         if ds.coeffs is None or ds.coeffs.shape[1] != 6:
             raise DatasetError(f"{path}: the navigation fits need six body coefficients per snapshot")
         idx = ds.point_indices(port_names)
+        cp_path = Path(path) / "cp.npy"
+        cp_ports = np.asarray(read_columns(cp_path, idx), dtype=np.float64)
+        if cp_ports.shape[0] != ds.n_snapshots or not np.all(np.isfinite(cp_ports)):
+            raise DatasetError(f"{cp_path}: non-finite or missing values in the port columns")
         return cls(
             states=np.asarray(states, dtype=np.float64),
-            cp_ports=np.asarray(ds.cp[:, idx], dtype=np.float64),
+            cp_ports=cp_ports,
             coeffs=np.asarray(ds.coeffs, dtype=np.float64),
             span_m=ds.reference.span_m,
             chord_m=ds.reference.chord_m,
@@ -200,30 +206,42 @@ class PortPressureModel:
             return None
         dp = dp_pa[ok]
         q, a, b = start if start is not None else self._grid_start(dp, ok, rho_kg_m3, omega_b, controls_rad)
+        # what :meth:`cp` recomputes each iteration but is fixed for this frame, on the usable ports: the
+        # rate terms ∝ 1/V, the controls' δ and δ² terms and the α·δ terms' slope (the profile's FADS cost)
+        th = self.theta[:, ok]
+        th_angle = th[:10]
+        c = np.asarray(controls_rad, dtype=np.float64)
+        rate_per_v = (np.asarray(omega_b) * np.array([self.span_m, self.chord_m, self.span_m]) / 2.0) @ th[10:13]
+        ctl_fixed = c @ th[13:16] + (c * c) @ th[16:19]
+        ctl_alpha = c @ th[19:22]
+        cp_rms = self.cp_rms[ok]
         for _ in range(iterations):
             speed = math.sqrt(2.0 * max(q, 1.0) / rho_kg_m3)
-            c, ca, cb = (v[ok] for v in self.cp(a, b, speed, omega_b, controls_rad))
-            w = 1.0 / (noise_pa**2 + (max(q, 1.0) * self.cp_rms[ok]) ** 2)
-            r = dp - q * c
-            j = np.stack([c, q * ca, q * cb], axis=1)  # ∂(q̄·Cp)/∂(q̄, α, β)
+            val, da, db = _angle_terms(a, b)
+            cp = val @ th_angle + rate_per_v / max(speed, 1.0) + ctl_fixed + a * ctl_alpha
+            ca, cb = da @ th_angle + ctl_alpha, db @ th_angle
+            w = 1.0 / (noise_pa**2 + (max(q, 1.0) * cp_rms) ** 2)
+            r = dp - q * cp
+            j = np.stack([cp, q * ca, q * cb], axis=1)  # ∂(q̄·Cp)/∂(q̄, α, β)
             jw = j * w[:, None]
             info = j.T @ jw
             try:
-                step = np.linalg.solve(info, jw.T @ r)
+                info_inv = np.linalg.inv(info)  # one 3×3 inverse: the step and the convergence test's 1σ
             except np.linalg.LinAlgError:
                 return None
+            step = info_inv @ (jw.T @ r)
             q, a, b = q + step[0], a + step[1], b + step[2]
             if not (q > 1.0 and abs(a) < 0.6 and abs(b) < 0.6):
                 return None
             # converged when the step is 1 % of the solution's own 1σ (the weights depend on q̄: the iteration
             # converges linearly, ~×0.2 a step; the last 1e-4 rad would cost three more iterations for nothing)
-            if np.all(step * step < 1e-4 * np.diag(np.linalg.inv(info))):
+            if np.all(step * step < 1e-4 * np.diag(info_inv)):
                 break
         speed = math.sqrt(2.0 * q / rho_kg_m3)
-        c, _, _ = self.cp(a, b, speed, omega_b, controls_rad)
-        r = dp - q * c[ok]
+        cp = _angle_terms(a, b)[0] @ th_angle + rate_per_v / max(speed, 1.0) + ctl_fixed + a * ctl_alpha
+        r = dp - q * cp
         chi2 = float(np.sum(r * r * w)) / max(n - 3, 1)
-        cov_qab = np.linalg.inv(info) * max(chi2, 1.0)
+        cov_qab = info_inv * max(chi2, 1.0)
         d = np.diag([1.0 / (rho_kg_m3 * speed), 1.0, 1.0])  # ∂(V, α, β)/∂(q̄, α, β)
         return np.array([speed, a, b]), d @ cov_qab @ d, chi2
 

@@ -68,6 +68,7 @@ __all__ = [
     "NavConfig",
     "NavFilter",
     "mode_spec",
+    "reads_ports",
 ]
 
 GATE_CHI2: Final = {1: 15.14, 2: 18.42, 3: 21.11, 6: 27.86}
@@ -160,6 +161,13 @@ def mode_spec(mode: str) -> ModeSpec:
     if spec is None:
         raise ValueError(f"unknown navigation mode {mode!r}; known: {', '.join([*MODES, *ABLATIONS])}")
     return spec
+
+
+def reads_ports(mode: str) -> bool:
+    """Whether ``mode`` reads the pressure ports (air data from them or a port force model): only then does a
+    run need the port front end, which costs as much as the rest of a filter step."""
+    spec = mode_spec(mode)
+    return spec.ports_airdata or spec.force in ("deim", "deim-nn")
 
 
 WIND_PSCALE: Final = 0.5  # wind noise × (1 + WIND_PSCALE·|ḣ|): EKF2/EKF3's WIND_PSCALE (default 0.5 per m/s)

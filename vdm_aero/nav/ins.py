@@ -68,8 +68,8 @@ class ProcessNoise:
     gust_tau_s: tuple[float, float, float] = (14.0, 14.0, 6.0)
 
 
-_EYE = np.eye(N_ERR)
-_EYE.flags.writeable = False
+_I3 = np.eye(3)
+_I3.flags.writeable = False
 
 
 class InsProcess:
@@ -93,14 +93,14 @@ class InsProcess:
         self._qc = q
         self.set_gust_sigma(np.asarray(n.gust_sigma_m_s, dtype=np.float64))
         self._g = np.array([0.0, 0.0, G0_M_S2])
-        # the error dynamics' blocks that do not depend on the state (the transition copies them each step)
-        f = np.zeros((N_ERR, N_ERR))
-        f[0:3, 3:6] = np.eye(3)
-        f[6:9, 9:12] = -np.eye(3)
-        g, gu = IDX["gnss"], IDX["gust"]
-        f[g, g] = -np.eye(3) / self.noise_densities.gnss_tau_s
-        f[gu, gu] = -np.diag(self._gust_rate)
-        self._f_const = f
+        # the diagonal Gauss–Markov decay rates of the GNSS error and the gust (the rest of F is filled from the
+        # state each step, in the blocks :meth:`transition` names)
+        rates = np.zeros(N_ERR)
+        rates[IDX["gnss"]] = 1.0 / self.noise_densities.gnss_tau_s
+        rates[IDX["gust"]] = self._gust_rate
+        self._decay_rates = rates
+        self._phi_dt = math.nan  # Δt of the cached state-independent part of Φ
+        self._phi_const = np.eye(N_ERR)
 
     def set_gust_sigma(self, sigma_m_s: F64Array) -> None:
         """The gust's steady-state standard deviation (N, E, D) [m/s]: q = 2σ²/τ keeps the Gauss–Markov
@@ -128,17 +128,33 @@ class InsProcess:
         x.p_ned = x.p_ned + 0.5 * (v0 + x.v_ned) * dt
 
     def transition(self, x: NavState, u: ImuIncrement) -> F64Array:
-        """Φ ≈ I + F·Δt + ½(F·Δt)², with the attitude at mid-step (as the mechanisation rotates Δv)."""
+        """Φ ≈ I + F·Δt + ½(F·Δt)², with the attitude at mid-step (as the mechanisation rotates Δv).
+
+        F's non-zero blocks (p, v, θ, b_g, b_a at 0, 3, 6, 9, 12): F_pv = I, F_vθ = −Ĉ[f×], F_vba = −Ĉ,
+        F_θθ = −[ω×], F_θbg = −I, and the GNSS error's and the gust's decay on the diagonal. F² is written out
+        block by block (F_pv·F_v•, F_vθ·F_θ•, F_θθ·F_θ•) instead of a dense 34×34 product: the profile's
+        largest single cost of a step (docs/performance.md)."""
         dt = u.dt_s
         f_b = u.dvel_b / dt - x.b_accel_b
         w_b = u.dtheta_b / dt - x.b_gyro_b
         c = dcm_from_quat(quat_multiply(x.q_nb, quat_exp(0.5 * w_b * dt)))
-        f = self._f_const.copy()  # the state-independent blocks, then the three that depend on the state
-        f[3:6, 6:9] = -c @ skew(f_b)
-        f[3:6, 12:15] = -c
-        f[6:9, 6:9] = -skew(w_b)
-        fdt = f * dt
-        return _EYE + fdt + 0.5 * fdt @ fdt
+        if dt != self._phi_dt:  # the diagonal: 1 − aΔt + ½(aΔt)², constant while Δt is
+            a = self._decay_rates * dt
+            self._phi_const = np.diag(1.0 - a + 0.5 * a * a)
+            self._phi_dt = dt
+        cf = c @ skew(f_b)
+        wx = skew(w_b)
+        h = 0.5 * dt * dt
+        phi = self._phi_const.copy()
+        phi[0:3, 3:6] = _I3 * dt
+        phi[0:3, 6:9] = -h * cf
+        phi[0:3, 12:15] = -h * c
+        phi[3:6, 6:9] = -dt * cf + h * (cf @ wx)
+        phi[3:6, 9:12] = h * cf
+        phi[3:6, 12:15] = -dt * c
+        phi[6:9, 6:9] = _I3 - dt * wx + h * (wx @ wx)
+        phi[6:9, 9:12] = -dt * _I3 + h * wx
+        return phi
 
     def noise(self, x: NavState, u: ImuIncrement) -> F64Array:
         """Q_d = G·Q_c·Gᵀ·Δt (the velocity noise rotated to NED; its covariance is isotropic); the wind's

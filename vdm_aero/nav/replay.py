@@ -24,7 +24,7 @@ import numpy as np
 from vdm_aero._typing import F64Array
 from vdm_aero.flightlog import SensorLog
 from vdm_aero.geodesy import LocalFrame
-from vdm_aero.nav.filter import AP_ATTITUDE_SIGMA_RAD, MODES, SLOW_IMU_HZ, NavConfig, NavFilter, mode_spec
+from vdm_aero.nav.filter import AP_ATTITUDE_SIGMA_RAD, MODES, SLOW_IMU_HZ, NavConfig, NavFilter, mode_spec, reads_ports
 from vdm_aero.nav.models import NavModels
 from vdm_aero.nav.ports_frontend import PortFrontEnd
 from vdm_aero.nav.stream import LogRunner, NavStream, SolutionRecorder
@@ -39,7 +39,7 @@ MAX_FILTER_RATE_HZ = 50.0
 MAX_INTERP_GAP_S = 1.0  # a track (reference, autopilot) is not interpolated across a gap longer than this
 PORT_RANGE_PA = 500.0  # the port transducers' full scale and noise: deploy/config.yaml's defaults (SDP31)
 PORT_NOISE_PA = 0.2
-_PORT_MODES = frozenset(m for m, s in MODES.items() if s.ports_airdata or s.force in ("deim", "deim-nn"))
+_PORT_MODES = frozenset(m for m in MODES if reads_ports(m))
 
 
 @dataclass(frozen=True, eq=False)

@@ -1,0 +1,82 @@
+"""CPU per 50 Hz filter step of each navigation mode: the figure of issue 25, measured the same way on any
+version of the code.
+
+Run as a script with a checkout first on ``PYTHONPATH`` (``bench/baseline.py`` does that for the code before
+issue 25), so the one measurement compares two versions side by side. It uses only interfaces both have: the
+benchmark's flight and models (``vdm_aero_cli.nav_bench``), ``NavStream.from_log``, ``LogRunner``,
+``NavFilter``, ``PortFrontEnd``. The stream is built once; what is timed is ``LogRunner.run_until``: the
+filter with the driver in front of it, and the port front end only for a mode that reads the ports (what the
+service and the replay run per mode).
+
+    python bench/filter_speed_probe.py ARTIFACTS_DIR --seconds 120 --repeats 5 --modes ins,vdm
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+FILTER_RATE_HZ = 50.0
+
+
+def measure(artifacts_dir: Path, seconds: float, repeats: int, modes: list[str]) -> dict[str, Any]:
+    from vdm_aero.geodesy import LocalFrame
+    from vdm_aero.nav.filter import MODES, NavConfig, NavFilter, mode_spec
+    from vdm_aero.nav.ports_frontend import PortFrontEnd
+    from vdm_aero.nav.replay import SensorLog
+    from vdm_aero.nav.stream import LogRunner, NavStream
+    from vdm_aero_cli.nav_bench import NavArtifacts, _flight, _nav
+
+    art = NavArtifacts.under(artifacts_dir, 10.0)
+    sensors, _truth, meta, _ = _flight("survey", 0, art, seconds)
+    nav = _nav(art)
+    home = meta["home"]
+    frame = LocalFrame(home["lat_deg"], home["lon_deg"], home["alt_m"])
+    log = SensorLog(path=Path("<probe>"), meta={"duration_s": meta["duration_s"]}, port_names=(), arrays=sensors)
+    cfg = NavConfig.for_imu(meta.get("imu_part", "icm-42688-p"), vehicle=nav.vehicle, origin_alt_m=home["alt_m"],
+                            mag_field_ned_ut=np.asarray(meta["mag_field_ned_t"]) * 1e6)  # fmt: skip
+    stream = NavStream.from_log(log, nav.vehicle, frame, filter_rate_hz=cfg.filter_rate_hz,
+                                gnss_latency_s=cfg.gnss_latency_s)  # fmt: skip
+    steps = (seconds - 1.0) * FILTER_RATE_HZ
+    out: dict[str, Any] = {}
+    for m in modes or list(MODES):
+        spec = mode_spec(m)
+        reads_ports = spec.ports_airdata or spec.force in ("deim", "deim-nn")
+        times = []
+        for _ in range(repeats):
+            fe = (
+                PortFrontEnd(nav.pressure_model, dict(nav.models), range_pa=500.0, noise_pa=0.2)
+                if reads_ports
+                else None
+            )
+            runner = LogRunner(stream, {m: NavFilter(m, cfg, nav.derivatives)}, fe)
+            t0 = time.process_time()
+            runner.run_until(seconds - 1.0)
+            times.append(time.process_time() - t0)
+        cpu = statistics.median(times)
+        out[m] = {"us_per_step": round(1e6 * cpu / steps, 1), "x_real_time": round((seconds - 1.0) / cpu, 1),
+                  "runs_us_per_step": [round(1e6 * t / steps, 1) for t in times]}  # fmt: skip
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("artifacts", type=Path)
+    ap.add_argument("--seconds", type=float, default=120.0)
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--modes", default="")
+    args = ap.parse_args(argv)
+    modes = [m for m in args.modes.split(",") if m]
+    json.dump(measure(args.artifacts, args.seconds, args.repeats, modes), sys.stdout)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
