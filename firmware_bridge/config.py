@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 import reprlib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Final
 
@@ -23,10 +23,12 @@ from firmware_bridge import units
 from firmware_bridge.transport import parse_url
 from vdm_aero.errors import UserInputError
 
-__all__ = ["ConfigError", "ServiceConfig", "load_config"]
+__all__ = ["ConfigError", "ServiceConfig", "SourceSwitchConfig", "load_config"]
 
 AUTOPILOTS = ("ardupilot", "px4")
-SOLUTION_OUTPUTS = {"ardupilot": ("gps_input", "none"), "px4": ("global_position_sensor", "odometry", "none")}
+SOLUTION_OUTPUTS = {"ardupilot": ("gps_input", "odometry", "none"),
+                    "px4": ("global_position_sensor", "odometry", "none")}  # fmt: skip
+EKF_SOURCE_SETS = (1, 2, 3)  # EK3_SRC1_* … EK3_SRC3_* (AP_NavEKF_Source: AP_NAKEKF_SOURCE_SET_MAX = 3)
 PORT_SOURCES = ("named_value_float", "debug_float_array")
 # What ``streams: auto`` asks each autopilot for [Hz] (MAV_CMD_SET_MESSAGE_INTERVAL), from what each one sends:
 # * ArduPilot: RAW_IMU (in every build, already scaled; HIGHRES_IMU is built only where flash allows,
@@ -63,6 +65,19 @@ class PortsConfig:
 
 
 @dataclass(frozen=True)
+class SourceSwitchConfig:
+    """ArduPilot's EKF3 source set for GNSS and for ExternalNav (MAV_CMD_SET_EKF_SOURCE_SET), the time GNSS
+    must be back before the GNSS set is asked for [s], the retry period without COMMAND_ACK [s], and the
+    number of transmissions per switch."""
+
+    gnss_set: int
+    extnav_set: int
+    gnss_hold_s: float
+    retry_s: float
+    max_tries: int
+
+
+@dataclass(frozen=True)
 class OutputsConfig:
     named_values_hz: float
     prefix: str
@@ -72,6 +87,7 @@ class OutputsConfig:
     max_sigma_3d_m: float
     max_sigma_m: float
     external_wind: bool
+    source_switch: SourceSwitchConfig | None = None  # None: the service switches no source set
 
 
 @dataclass(frozen=True)
@@ -260,6 +276,35 @@ def load_config(path: Path) -> ServiceConfig:
         raise ConfigError(f"{path}: {_one_line(e)}") from None
 
 
+def _source_switch(o: _Node, autopilot: str, solution: str) -> SourceSwitchConfig | None:
+    """``outputs.source_switch``: null or false (YAML's ``off`` too) for none, or the mapping of
+    :class:`SourceSwitchConfig`; only with ArduPilot's ExternalNav route."""
+    given = o.value("source_switch", None)
+    if given is None or given is False:
+        return None
+    if not isinstance(given, dict):
+        raise o.fail("source_switch", f"expected null (off) or a mapping of gnss_set, extnav_set, gnss_hold_s, "
+                                      f"retry_s, max_tries, got {_show(given)}")  # fmt: skip
+    if autopilot != "ardupilot":
+        raise o.fail("source_switch", "MAV_CMD_SET_EKF_SOURCE_SET (EK3_SRCn_* source sets) is ArduPilot's only")
+    if solution != "odometry":
+        raise o.fail("source_switch", f"switches EKF3 to ExternalNav, which needs outputs.solution: odometry "
+                                      f"(not {solution})")  # fmt: skip
+    sw = o.sub("source_switch")
+    lo, hi = EKF_SOURCE_SETS[0], EKF_SOURCE_SETS[-1]
+    cfg = SourceSwitchConfig(
+        gnss_set=sw.integer("gnss_set", 1, lo=lo, hi=hi),
+        extnav_set=sw.integer("extnav_set", lo=lo, hi=hi),
+        gnss_hold_s=sw.num("gnss_hold_s", 10.0, lo=0.0, hi=600.0),
+        retry_s=sw.num("retry_s", 1.0, lo=0.2, hi=10.0),
+        max_tries=sw.integer("max_tries", 5, lo=1, hi=20),
+    )
+    if cfg.extnav_set == cfg.gnss_set:
+        raise sw.fail("extnav_set", f"is the GNSS set ({cfg.gnss_set}): the switch would change nothing")
+    sw.finish()
+    return cfg
+
+
 def _read(r: _Node) -> ServiceConfig:
     from vdm_aero.nav.filter import MODES
 
@@ -341,6 +386,9 @@ def _read(r: _Node) -> ServiceConfig:
     )
     if outputs.external_wind and autopilot != "ardupilot":
         raise o.fail("external_wind", "MAV_CMD_EXTERNAL_WIND_ESTIMATE is handled by ArduPilot only")
+    switch = _source_switch(o, autopilot, outputs.solution)
+    if switch is not None:
+        outputs = replace(outputs, source_switch=switch)
     o.finish()
     st = r.sub("state")
     state_file = st.path_("file", exists=False)

@@ -6,6 +6,9 @@
   are filled from UTC (GPS time = UTC + :data:`GPS_LEAP_S`), the fix type follows the filter's health, the
   accuracies are the filter's 1σ inflated by :func:`inflation` (below). Optionally
   ``MAV_CMD_EXTERNAL_WIND_ESTIMATE`` (43004) with the held wind.
+* ArduPilot, ExternalNav (:func:`ardupilot_odometry`): ``ODOMETRY`` as ``GCS_MAVLINK::handle_odometry`` takes
+  it (``VISO_TYPE = 1``), the position in the NED frame of the autopilot's EKF origin, and
+  ``MAV_CMD_SET_EKF_SOURCE_SET`` (42007, :func:`set_ekf_source_set`) to switch EKF3 to it and back.
 * PX4: ``GLOBAL_POSITION_SENSOR`` (296, auxiliary global position, EKF2_AGP_*) or ``ODOMETRY``
   (EKF2_EV_*, position in the local NED frame of our origin).
 
@@ -29,7 +32,15 @@ from firmware_bridge.endpoint import MavlinkMessage
 from vdm_aero._typing import F64Array
 from vdm_aero.rotation import dcm_from_quat
 
-__all__ = ["GPS_LEAP_S", "Solution", "gps_week_time", "inflation"]
+__all__ = [
+    "GPS_LEAP_S",
+    "Solution",
+    "ardupilot_odometry",
+    "gps_week_time",
+    "inflation",
+    "odometry_quality",
+    "set_ekf_source_set",
+]
 
 GPS_EPOCH_UNIX_S = 315964800  # 1980-01-06T00:00:00Z
 GPS_LEAP_S = 18  # GPS − UTC since 2017-01-01 (no leap second announced since)
@@ -38,6 +49,10 @@ MAV_CMD_EXTERNAL_WIND_ESTIMATE = 43004  # MAVLink common (ArduPilot 4.5+); not i
 EKF_SMOOTHING_S = 1.0
 # GPS_INPUT ignore flags: we send no HDOP/VDOP-derived fields beyond the accuracies
 GPS_INPUT_IGNORE = mavlink2.GPS_INPUT_IGNORE_FLAG_HDOP | mavlink2.GPS_INPUT_IGNORE_FLAG_VDOP
+MAV_CMD_SET_EKF_SOURCE_SET = 42007  # ardupilotmega.xml; param1 = the source set, 1..3
+# ODOMETRY.quality (MAVLink common): -1 the odometry has failed, 0 unknown, 1 worst … 100 best
+QUALITY_FAILED = -1
+QUALITY_FALLBACK_MAX = 50  # no port air data (airspeed dead reckoning): at most half, as GPS_INPUT's 2-D fix
 
 
 def gps_week_time(unix_s: float) -> tuple[int, int]:
@@ -111,23 +126,92 @@ def global_position_sensor(mav: mavlink2.MAVLink, s: Solution, *, target: tuple[
     )  # fmt: skip
 
 
+def _covariances(s: Solution, k: float, sigma_att_rad: tuple[float, float, float] | None = None
+                 ) -> tuple[list[float], list[float]]:  # fmt: skip
+    """ODOMETRY's pose and velocity covariances (upper triangles of 6×6, row-major: indices 0, 6, 11 are x, y,
+    z; 15, 18, 20 roll, pitch, yaw) with the σ inflated by ``k``: horizontal position σ_h on both axes (the
+    larger eigenvalue), vertical σ_v, the velocity's isotropic σ (so a rotation to the body frame leaves it as it
+    is); what is not known (the cross terms, the rates, an attitude σ not given) is NaN."""
+    pose_cov = [math.nan] * 21
+    pose_cov[0] = pose_cov[6] = (k * s.sigma_h_m) ** 2
+    pose_cov[11] = (k * s.sigma_v_m) ** 2
+    if sigma_att_rad is not None:  # not inflated: the autopilot fuses no attitude from it (EK3_SRCn_YAW = 1)
+        pose_cov[15], pose_cov[18], pose_cov[20] = (float(v) ** 2 for v in sigma_att_rad)
+    vel_cov = [math.nan] * 21
+    vel_cov[0] = vel_cov[6] = vel_cov[11] = (k * s.sigma_vel_m_s) ** 2
+    return pose_cov, vel_cov
+
+
+def _v_body(s: Solution) -> F64Array:
+    """The velocity in the body frame FRD [m/s]: v_b = C_nbᵀ·v_ned."""
+    return dcm_from_quat(s.q_nb).T @ np.asarray(s.v_ned_m_s, dtype=np.float64)
+
+
 def odometry(mav: mavlink2.MAVLink, s: Solution, *, k: float) -> MavlinkMessage:
     """ODOMETRY (PX4 EKF2_EV_*): the pose in MAV_FRAME_LOCAL_NED of our origin, the velocity in the frame
     ``child_frame_id`` names, MAV_FRAME_BODY_FRD (v_b = C_nbᵀ·v_ned; PX4's mavlink_receiver maps that id to
     its body-frame velocity), with diagonal covariances (the velocity's is isotropic, so the rotation leaves
     it as it is)."""
-    v_b = dcm_from_quat(s.q_nb).T @ np.asarray(s.v_ned_m_s, dtype=np.float64)
-    nan21 = [math.nan] * 21
-    pose_cov = list(nan21)
-    pose_cov[0] = pose_cov[6] = (k * s.sigma_h_m) ** 2  # upper-triangle row-major: (0,0), (1,1), (2,2)
-    pose_cov[11] = (k * s.sigma_v_m) ** 2
-    vel_cov = list(nan21)
-    vel_cov[0] = vel_cov[6] = vel_cov[11] = (k * s.sigma_vel_m_s) ** 2
+    pose_cov, vel_cov = _covariances(s, k)
     return mav.odometry_encode(
         round(s.boot_s * 1e6), mavlink2.MAV_FRAME_LOCAL_NED, mavlink2.MAV_FRAME_BODY_FRD,
-        *(float(v) for v in s.p_ned_m), [float(v) for v in s.q_nb], *(float(v) for v in v_b),
+        *(float(v) for v in s.p_ned_m), [float(v) for v in s.q_nb], *(float(v) for v in _v_body(s)),
         math.nan, math.nan, math.nan, pose_cov, vel_cov, 0, mavlink2.MAV_ESTIMATOR_TYPE_VIO, 0,
     )  # fmt: skip
+
+
+def odometry_quality(s: Solution, *, max_sigma_m: float, fallback: bool) -> int:
+    """ODOMETRY.quality from the filter's health: -1 (failed) without a solution (no 2-D or 3-D fix type: not
+    initialised, or σ_h above ``max_sigma_m``), else 100·(1 − σ_h/max_sigma_m) rounded, in 1..100, at most
+    :data:`QUALITY_FALLBACK_MAX` while the ports give no air data. ArduPilot fuses a sample only when its
+    quality is ≥ VISO_QUAL_MIN (AP_VisualOdom_MAV::handle_pose_estimate / handle_vision_speed_estimate)."""
+    if s.fix_type < mavlink2.GPS_FIX_TYPE_2D_FIX or not math.isfinite(s.sigma_h_m):  # NO_GPS 0, NO_FIX 1
+        return QUALITY_FAILED
+    q = min(max(round(100.0 * (1.0 - s.sigma_h_m / max_sigma_m)), 1), 100)
+    return min(q, QUALITY_FALLBACK_MAX) if fallback else q
+
+
+def ardupilot_odometry(mav: mavlink2.MAVLink, s: Solution, *, p_ned_m: F64Array, k: float, quality: int,
+                       reset_counter: int, sigma_att_rad: tuple[float, float, float]) -> MavlinkMessage:  # fmt: skip
+    """ODOMETRY for ArduPilot's ExternalNav (``VISO_TYPE = 1``), as ``GCS_MAVLINK::handle_odometry``
+    (libraries/GCS_MAVLink/GCS_Common.cpp) reads it:
+
+    * ``frame_id`` MAV_FRAME_LOCAL_FRD (20) and ``child_frame_id`` MAV_FRAME_BODY_FRD (12): any other pair is
+      dropped without a word (and VisualOdom turns unhealthy, "VisOdom: not healthy"). LOCAL_FRD is the label
+      ArduPilot requires; it takes the axes as its EKF's north, east, down (VISO_ORIENT = 0).
+    * ``x, y, z`` = ``p_ned_m``: north, east, down [m] from the autopilot's **EKF origin** (GPS_GLOBAL_ORIGIN).
+      The MAVLink backend aligns nothing (AP_VisualOdom_Backend::align_position_to_ahrs is empty; only the
+      T265/VOXL backends align), and EKF3 fuses ExtNav position as its own NED state and resets to it at the
+      source switch, so our origin would put the aircraft where it is not.
+    * ``q``: body FRD → NED (w, x, y, z); ArduPilot rotates the velocity with it (``vel = q * vel``) and fuses its
+      yaw only with EK3_SRCn_YAW = 6.
+    * ``vx, vy, vz``: the velocity in the body frame FRD [m/s], v_b = C_nbᵀ·v_ned.
+    * ``pose_covariance``: ArduPilot reads only [0], [6], [11] (posErr = ∛(c0² + c6² + c11²)) and [15], [18],
+      [20] (angErr, the same of the attitude variances); a NaN in [0] means 0 (then VISO_POS_M_NSE). The
+      attitude variances are the filter's, since a NaN there would reach constrain_float as NaN.
+    * ``velocity_covariance``: sent (honest, as for PX4); the handle_odometry read ignores it and VISO_VEL_M_NSE
+      is the velocity noise (AP_VisualOdom_MAV::handle_vision_speed_estimate); newer front ends take a
+      velocity error.
+    * rates NaN (ArduPilot reads none), ``reset_counter`` bumped when our pose jumps (EKF3 then resets its
+      position to ours instead of gating it), ``estimator_type`` MAV_ESTIMATOR_TYPE_UNKNOWN (no entry of the
+      enum is an air-data INS; ArduPilot ignores it), ``quality`` (:func:`odometry_quality`).
+    """
+    pose_cov, vel_cov = _covariances(s, k, sigma_att_rad)
+    return mav.odometry_encode(
+        round(s.boot_s * 1e6), mavlink2.MAV_FRAME_LOCAL_FRD, mavlink2.MAV_FRAME_BODY_FRD,
+        *(float(v) for v in p_ned_m), [float(v) for v in s.q_nb], *(float(v) for v in _v_body(s)),
+        math.nan, math.nan, math.nan, pose_cov, vel_cov, reset_counter % 256,
+        mavlink2.MAV_ESTIMATOR_TYPE_UNKNOWN, int(quality),
+    )  # fmt: skip
+
+
+def set_ekf_source_set(mav: mavlink2.MAVLink, *, target: tuple[int, int], source_set: int, confirmation: int
+                       ) -> MavlinkMessage:  # fmt: skip
+    """COMMAND_LONG MAV_CMD_SET_EKF_SOURCE_SET: param1 = the source set 1..3 (ArduPilot's
+    GCS_MAVLINK::handle_command_set_ekf_source_set: ACCEPTED for 1..3, else FAILED); ``confirmation`` 0 on the
+    first transmission, +1 on each retransmission (the MAVLink command protocol)."""
+    return mav.command_long_encode(target[0], target[1], MAV_CMD_SET_EKF_SOURCE_SET, min(confirmation, 255),
+                                   float(source_set), 0, 0, 0, 0, 0, 0)  # fmt: skip
 
 
 def external_wind(mav: mavlink2.MAVLink, s: Solution, *, target: tuple[int, int]) -> MavlinkMessage:

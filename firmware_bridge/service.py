@@ -28,7 +28,7 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from firmware_bridge import outputs, units
-from firmware_bridge.config import ServiceConfig
+from firmware_bridge.config import ServiceConfig, SourceSwitchConfig
 from firmware_bridge.decode import AUTOPILOT_LOST_S, IMU_SOURCES, MESSAGES, MavlinkDecoder
 from firmware_bridge.endpoint import MavEndpoint, MavlinkMessage, load_signing_key
 from firmware_bridge.inputs import PortFrameIn
@@ -39,14 +39,14 @@ from vdm_aero._typing import F64Array
 from vdm_aero.errors import UserInputError
 from vdm_aero.geodesy import LocalFrame
 from vdm_aero.nav.driver import NavDriver
-from vdm_aero.nav.filter import AP_ATTITUDE_SIGMA_RAD, SLOW_IMU_HZ, NavConfig, NavFilter
+from vdm_aero.nav.filter import AP_ATTITUDE_SIGMA_RAD, GNSS_TIMEOUT_S, SLOW_IMU_HZ, NavConfig, NavFilter
 from vdm_aero.nav.imu_increments import ImuIntegrator
 from vdm_aero.nav.models import NavModels
 from vdm_aero.nav.ports_frontend import PortFrame, PortFrontEnd
 from vdm_aero.nav.state import IDX
 from vdm_aero.rotation import euler_from_quat
 
-__all__ = ["CompanionService", "ServiceStats", "port_names"]
+__all__ = ["CompanionService", "EkfSourceSwitch", "ServiceStats", "port_names"]
 
 HEARTBEAT_S = 1.0
 TIMESYNC_S = 2.0
@@ -59,6 +59,9 @@ PERIODIC_S = 0.005
 ERROR_LOG_EVERY_S = 10.0
 LATENCY_WINDOW = 20000
 RESTORE_WAIT_S = 3.0  # how long a restore waits for SYSTEM_TIME's boot instant before going without it
+ORIGIN_REQUEST_S = 5.0  # GPS_GLOBAL_ORIGIN asked for this often until it comes (ArduPilot has none before its EKF
+# has one: GCS_MAVLINK::send_gps_global_origin sends nothing then, and the request is still ACCEPTED)
+ARDUPILOT_BOOT_SOURCE_SET = 1  # AP_NavEKF_Source::init: EKF3 starts every boot with EK3_SRC1_*
 
 
 def models_identity(cfg: ServiceConfig) -> str:
@@ -84,6 +87,8 @@ class ServiceStats:
     command_acks: dict[str, int] = field(default_factory=dict)
     commands_refused: int = 0  # COMMAND_LONG/INT addressed to us, answered MAV_RESULT_UNSUPPORTED
     solutions_sent: int = 0
+    odometry_without_origin: int = 0  # ArduPilot ODOMETRY due but the EKF origin not yet known: not sent
+    origin_requests: int = 0
     named_values_sent: int = 0
     filter_resets: int = 0
     link_gaps: list[dict[str, float]] = field(default_factory=list)  # {"wall_s", "autopilot_s"} per gap
@@ -98,6 +103,132 @@ class ServiceStats:
         a = np.asarray(self.latency_s) * 1e3
         return {"p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99)), "max": float(a.max()),
                 "n": len(a)}  # fmt: skip
+
+
+class EkfSourceSwitch:
+    """ArduPilot's EKF3 source set, switched by MAV_CMD_SET_EKF_SOURCE_SET (``outputs.source_switch``).
+
+    * **Wanted**: the ExternalNav set once no 3-D fix has come for GNSS_TIMEOUT_S (the filter's own outage
+      test: GPS_RAW_INT without a 3-D fix is skipped by the decoder, and a silent stream is the same) *and* the
+      service sends a solution ArduPilot can use (ODOMETRY with quality ≥ 1); the GNSS set once fixes have come
+      without such a gap for ``gnss_hold_s``. In between the wish is held (a flickering receiver does not
+      toggle the EKF's sources). At start the autopilot's set is unknown (the service may restart mid-flight):
+      the first wish is sent even when it is the GNSS set.
+    * **Sent** on the autopilot's clock of the wish, then again every ``retry_s`` of local time with
+      ``confirmation`` + 1 until COMMAND_ACK ACCEPTED, at most ``max_tries`` times; then given up (counted and
+      said) until the wish changes or the autopilot reboots. IN_PROGRESS waits one more period;
+      TEMPORARILY_REJECTED is retried within the same bound; any other result (FAILED: not a set 1..3, DENIED,
+      UNSUPPORTED: a build without it) is final for this wish. An ACK with nothing pending is counted, never
+      acted on.
+    * **A reboot** of the autopilot puts EKF3 back in set 1 (AP_NavEKF_Source::init). Nothing is sent while
+      the autopilot is not heard; after a link drop-out a switch given up for want of an ACK is tried again.
+
+    Times: ``t_s`` the autopilot's clock (the filter's), ``now_s`` the local monotonic clock (the link's)."""
+
+    NAMES = ("GNSS", "ExternalNav")
+
+    def __init__(self, cfg: SourceSwitchConfig, send: Callable[[int, int], None], say: Callable[[str], None]
+                 ) -> None:  # fmt: skip
+        self.cfg = cfg
+        self._send, self._say = send, say
+        self.active: int | None = None  # the set the autopilot confirmed; None: unknown
+        self.wanted: int | None = None
+        self.pending: int | None = None  # the set asked for and not yet confirmed
+        self.tries = 0
+        self._next_try_s = -math.inf
+        self._given_up: int | None = None  # the wish given up on (no ACK, or refused)
+        self._silent = False  # given up for want of an ACK (a link drop-out gives it a new round)
+        self._last_fix_s = -math.inf
+        self._fixes_since_s = math.inf  # start of the current run of fixes without a GNSS_TIMEOUT_S gap
+        self._now_s = -math.inf
+        self.counts: dict[str, int] = {"sent": 0, "accepted": 0, "refused": 0, "in_progress": 0, "gave_up": 0,
+                                       "unmatched_acks": 0, "to_extnav": 0, "to_gnss": 0}  # fmt: skip
+
+    def name(self, source_set: int | None) -> str:
+        if source_set is None:
+            return "unknown"
+        kind = self.NAMES[1] if source_set == self.cfg.extnav_set else self.NAMES[0]
+        return f"{source_set} ({kind})"
+
+    def gnss_fix(self, t_s: float) -> None:
+        """A 3-D fix arrived at ``t_s`` (autopilot clock)."""
+        if t_s - self._last_fix_s > GNSS_TIMEOUT_S:
+            self._fixes_since_s = t_s
+        self._last_fix_s = max(self._last_fix_s, t_s)
+
+    def gnss_lost(self, t_s: float) -> bool:
+        """A fix seen, and none for GNSS_TIMEOUT_S since (before the first fix GNSS is not lost: not yet had)."""
+        return math.isfinite(self._last_fix_s) and t_s - self._last_fix_s > GNSS_TIMEOUT_S
+
+    def update(self, t_s: float, now_s: float, *, solution_ok: bool) -> None:
+        """Decide the wish at ``t_s`` and send what is due at ``now_s``."""
+        self._now_s = now_s
+        if not math.isfinite(t_s):
+            return
+        c = self.cfg
+        if self.gnss_lost(t_s):
+            if solution_ok:
+                self.wanted = c.extnav_set
+        elif t_s - self._fixes_since_s >= c.gnss_hold_s:
+            self.wanted = c.gnss_set
+        want = self.wanted
+        if want is None or (want == self.active and self.pending is None):
+            return
+        if want != self.pending:  # a new wish: a new command, counted from its first transmission
+            if self.pending is not None:  # the last one may have been carried out with its ACK lost
+                self.active = None
+            self.pending, self.tries, self._next_try_s = want, 0, now_s
+            self._given_up = None
+            if want == self.active:  # back to what the autopilot already has: nothing to send
+                self.pending = None
+                return
+        if self._given_up == want or now_s < self._next_try_s:
+            return
+        if self.tries >= c.max_tries:
+            self.active = None  # carried out with every ACK lost, or not at all: unknown
+            self._give_up(f"no COMMAND_ACK ACCEPTED after {self.tries} transmissions")
+            self._silent = True
+            return
+        self._send(want, self.tries)
+        self.tries += 1
+        self.counts["sent"] += 1
+        self._next_try_s = now_s + c.retry_s
+
+    def ack(self, result: int) -> None:
+        """COMMAND_ACK of MAV_CMD_SET_EKF_SOURCE_SET from the autopilot."""
+        if self.pending is None or self._given_up == self.pending:
+            self.counts["unmatched_acks"] += 1
+            return
+        if result == mavlink2.MAV_RESULT_ACCEPTED:
+            self.active, self.pending = self.pending, None
+            self.counts["accepted"] += 1
+            self.counts["to_extnav" if self.active == self.cfg.extnav_set else "to_gnss"] += 1
+            self._say(f"vdm-aero serve: EKF3 source set {self.name(self.active)} accepted by the autopilot")
+        elif result == mavlink2.MAV_RESULT_IN_PROGRESS:
+            self.counts["in_progress"] += 1
+            self._next_try_s = self._now_s + self.cfg.retry_s
+        elif result == mavlink2.MAV_RESULT_TEMPORARILY_REJECTED:
+            self.counts["refused"] += 1  # retried at the next period, within max_tries
+        else:
+            self.counts["refused"] += 1
+            self._give_up(f"refused: MAV_RESULT {result}")
+
+    def _give_up(self, why: str) -> None:
+        self._given_up, self._silent = self.pending, False
+        self.counts["gave_up"] += 1
+        self._say(f"vdm-aero serve: EKF3 source set {self.name(self.pending)} NOT switched: {why}; the autopilot "
+                  f"stays in {self.name(self.active)} until the next change")  # fmt: skip
+
+    def autopilot_rebooted(self) -> None:
+        self.active, self.pending, self._given_up, self.tries = ARDUPILOT_BOOT_SOURCE_SET, None, None, 0
+
+    def link_back(self) -> None:
+        """After a link drop-out: a switch given up for want of an ACK gets a new round (a refused one does not)."""
+        if self._given_up is not None and self._silent:
+            self._given_up, self.tries, self._silent = None, 0, False
+
+    def summary(self) -> dict[str, Any]:
+        return {"active": self.active, "wanted": self.wanted, "pending": self.pending, **self.counts}
 
 
 def port_names(cfg: ServiceConfig, models: NavModels) -> tuple[str, ...]:
@@ -161,12 +292,22 @@ class CompanionService:
         self._streams_asked: set[str] = set()  # asked for at the last check
         self.stream_caps_hz: dict[str, float] = {}  # streams the autopilot sends slower than asked, at that rate
         self._inflation = outputs.inflation(cfg.outputs.solution_hz)
+        # ArduPilot's ExternalNav route: ODOMETRY in the NED frame of its EKF origin, and its source sets
+        self._extnav = cfg.autopilot == "ardupilot" and cfg.outputs.solution == "odometry"
+        self.ekf_origin: LocalFrame | None = None  # GPS_GLOBAL_ORIGIN
+        self.pose_resets = 0  # ODOMETRY.reset_counter: our pose jumped (re-initialised, or reset to a fix)
+        self._odometry_quality = outputs.QUALITY_FAILED  # of the last ODOMETRY sent
+        self._odometry_at_s = -math.inf  # the autopilot's time of the last ODOMETRY sent
+        sw = cfg.outputs.source_switch
+        self.source_switch = (EkfSourceSwitch(sw, self._send_source_set, self._print) if sw is not None
+                              else None)  # fmt: skip
         # what is not sensor data (the sensor data go through the decoder)
         self._handlers: dict[str, Callable[[MavlinkMessage, float], None]] = {
             "TIMESYNC": self._on_timesync,
             "COMMAND_ACK": self._on_command_ack,
             "COMMAND_LONG": self._on_command,
             "COMMAND_INT": self._on_command,
+            "GPS_GLOBAL_ORIGIN": self._on_gps_global_origin,
         }
 
     # ---------------------------------------------------------------------------------------- loop
@@ -178,9 +319,7 @@ class CompanionService:
         next_periodic = 0.0
         try:
             while not should_stop():
-                now = time.monotonic()
-                timeout = max(min(POLL_MAX_S, min(self._next.values(), default=now) - now), 0.0)
-                msgs = self.ep.poll(timeout)
+                msgs = self.ep.poll(self.poll_timeout(time.monotonic()))
                 t_in = self.ep.received_at
                 for msg in msgs:
                     self._dispatch(msg, t_in)
@@ -196,6 +335,13 @@ class CompanionService:
                 self.navlog.close()
             self.transport.close()
         return self.summary()
+
+    def poll_timeout(self, now: float) -> float:
+        """How long the loop may wait for the link [s]: until the next periodic work that is due later, at most
+        POLL_MAX_S. Work whose due time has passed but that is not done in this state (TIMESYNC and stream checks
+        while the autopilot is lost) must not make it 0: the loop then spun a core whenever the link went quiet."""
+        later = [t for t in self._next.values() if t > now]
+        return max(min(POLL_MAX_S, min(later, default=now + POLL_MAX_S) - now), 0.0)
 
     def _dispatch(self, msg: MavlinkMessage, t_in: float) -> None:
         kind = msg.get_type()
@@ -235,6 +381,8 @@ class CompanionService:
         that dropped out may have lost the requests); the filter coasts through the gap (NavFilter)."""
         gap = {"autopilot_s": boot_s - self._boot_now_s, "wall_s": t_in - self._last_imu_in, "at_boot_s": boot_s}
         self.stats.link_gaps.append(gap)
+        if self.source_switch is not None:
+            self.source_switch.link_back()
         self._force_streams = True
         self._next.pop("streams", None)
         self._print(f"vdm-aero serve: link back after {gap['autopilot_s']:.1f} s of autopilot time without data "
@@ -277,6 +425,10 @@ class CompanionService:
         self._force_streams = True  # every stream is back at the autopilot's defaults (RAW_IMU at 1 Hz): ask now
         self._next.pop("streams", None)
         self._boot_now_s = -math.inf  # a reboot is not a link gap
+        self.ekf_origin = None  # the new boot's EKF sets its origin afresh
+        self._odometry_at_s = -math.inf
+        if self.source_switch is not None:
+            self.source_switch.autopilot_rebooted()
 
     def on_imu_source(self, kind: str) -> None:
         self._print(f"vdm-aero serve: IMU from {kind}")
@@ -310,15 +462,24 @@ class CompanionService:
         # less the configured receiver latency (what ArduPilot's GPS_DELAY_MS and PX4's EKF2_GPS_DELAY subtract)
         if not math.isfinite(self._boot_now_s):
             return
+        if self.source_switch is not None:
+            self.source_switch.gnss_fix(t_arrived_s)
         if self.frame is None:  # the first 3-D fix sets the local origin; the next ones initialise the filter
             self._start_filter(fix)
             return
         assert self.driver is not None
         p = self.frame.to_ned(fix.lat_deg, fix.lon_deg, fix.alt_m)
         t_now = max(self.clock.filter_s(self._boot_now_s), t_arrived_s)
-        was = self.filter is not None and self.filter.initialised
+        f = self.filter
+        was = f is not None and f.initialised
+        resets = f.counts.get("gnss_position_reset", 0) if f is not None else 0
         self.driver.gnss(t_valid_s, t_now, np.asarray(p, dtype=np.float64).reshape(3), fix.v_ned_m_s)
-        if not was and self.filter is not None and self.filter.initialised:
+        # the pose jumps when it starts again (a reboot, a long IMU gap, a GNSS lock-out, divergence) and when the
+        # position is reset to a fix (reacquisition): ODOMETRY's reset_counter tells the autopilot
+        restarted = not was and math.isfinite(self._t_initialised_s)  # initialised before: this is a restart
+        if f is not None and f.initialised and (restarted or f.counts.get("gnss_position_reset", 0) > resets):
+            self.pose_resets += 1
+        if not was and f is not None and f.initialised:
             self._t_initialised_s = t_now
         self._restore_state(t_now)
 
@@ -440,6 +601,45 @@ class CompanionService:
     def _on_command_ack(self, msg: MavlinkMessage, t_in: float) -> None:
         key = f"{msg.command}:{msg.result}"
         self.stats.command_acks[key] = self.stats.command_acks.get(key, 0) + 1
+        if (self.source_switch is not None and msg.command == outputs.MAV_CMD_SET_EKF_SOURCE_SET
+                and self._from_autopilot(msg) and self._for_us(msg)):  # fmt: skip
+            self.source_switch.ack(int(msg.result))
+
+    def _for_us(self, msg: MavlinkMessage) -> bool:
+        """A COMMAND_ACK addressed to us, or to nobody (target 0/0: MAVLink 1, or an autopilot that fills none);
+        an ACK routed to us for a ground station's command is not ours."""
+        target = (getattr(msg, "target_system", 0), getattr(msg, "target_component", 0))
+        return target in ((0, 0), (self.cfg.system_id, self.cfg.component_id))
+
+    def _on_gps_global_origin(self, msg: MavlinkMessage, t_in: float) -> None:
+        """The autopilot's EKF origin: degE7, altitude AMSL [mm] (GCS_MAVLINK::send_gps_global_origin)."""
+        if not self._from_autopilot(msg):
+            return
+        lat, lon, alt = msg.latitude * 1e-7, msg.longitude * 1e-7, msg.altitude * 1e-3
+        if not (abs(lat) <= 90.0 and abs(lon) <= 180.0 and math.isfinite(alt)):
+            raise ValueError(f"GPS_GLOBAL_ORIGIN off the globe: {lat}, {lon}")
+        origin = LocalFrame(lat, lon, alt)
+        if self.ekf_origin is not None and origin != self.ekf_origin:
+            self.pose_resets += 1  # the same aircraft, other coordinates: a jump to the autopilot
+        if origin != self.ekf_origin:
+            self._print(f"vdm-aero serve: the autopilot's EKF origin {lat:.7f}, {lon:.7f}, {alt:.1f} m: ODOMETRY "
+                        "is sent in its NED frame")  # fmt: skip
+        self.ekf_origin = origin
+
+    def _request_origin(self) -> None:
+        """MAV_CMD_REQUEST_MESSAGE GPS_GLOBAL_ORIGIN (49), until it comes."""
+        assert self.autopilot is not None
+        sysid, compid = self.autopilot
+        msg_id = mavlink2.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN
+        self.ep.send(self.ep.mav.command_long_encode(sysid, compid, mavlink2.MAV_CMD_REQUEST_MESSAGE, 0, msg_id,
+                                                     0, 0, 0, 0, 0, 0))  # fmt: skip
+        self.stats.origin_requests += 1
+
+    def _send_source_set(self, source_set: int, confirmation: int) -> None:
+        if self.autopilot is None:
+            return
+        self.ep.send(outputs.set_ekf_source_set(self.ep.mav, target=self.autopilot, source_set=source_set,
+                                                confirmation=confirmation))  # fmt: skip
 
     # ------------------------------------------------------------------------------------ outputs
     def solution(self) -> outputs.Solution | None:
@@ -510,11 +710,12 @@ class CompanionService:
     def _send_solution(self, now: float) -> None:
         o = self.cfg.outputs
         f = self.filter
+        if self._extnav:  # not only in outages: ArduPilot needs ExternalNav data flowing before the switch
+            self._send_extnav(f)
+            return
         if o.solution == "none" or f is None or not f.initialised or not f.in_outage or self.autopilot is None:
             return
-        if not self._due_ap("solution", 1.0 / o.solution_hz):
-            return
-        s = self.solution()
+        s = self._due_solution()
         if s is None:
             return
         k = self._inflation
@@ -527,6 +728,48 @@ class CompanionService:
         else:
             self.ep.send(outputs.odometry(self.ep.mav, s, k=k))
         self.stats.solutions_sent += 1
+
+    def _due_solution(self) -> outputs.Solution | None:
+        """The solution, when one is due at ``outputs.solution_hz`` on the autopilot's clock (else None)."""
+        if not self._due_ap("solution", 1.0 / self.cfg.outputs.solution_hz):
+            return None
+        return self.solution()
+
+    def _send_extnav(self, f: NavFilter | None) -> None:
+        """ArduPilot's ExternalNav: ODOMETRY at ``solution_hz`` whenever the filter has a solution, in the NED
+        frame of the EKF origin (not sent, counted, before GPS_GLOBAL_ORIGIN came). In set 1 EKF3 does not fuse
+        it (EK3_SRC_OPTIONS = 0, docs/service.md), but VisualOdom is healthy (a sample within 300 ms:
+        AP_VisualOdom_Backend::healthy) and the EKF has data the moment the source set switches."""
+        o = self.cfg.outputs
+        if f is None or not f.initialised or self.autopilot is None:
+            return
+        s = self._due_solution()
+        if s is None:
+            return
+        if self.ekf_origin is None:
+            self.stats.odometry_without_origin += 1
+            return
+        p = np.array(self.ekf_origin.to_ned(s.lat_deg, s.lon_deg, s.alt_m), dtype=np.float64).reshape(3)
+        sig = np.sqrt(np.maximum(np.diag(f.P)[IDX["theta"]], 0.0))  # attitude error 1σ [rad], body axes
+        sigma_att = (float(sig[0]), float(sig[1]), float(sig[2]))
+        self._odometry_quality = outputs.odometry_quality(s, max_sigma_m=o.max_sigma_m, fallback=f.fallback)
+        self.ep.send(outputs.ardupilot_odometry(self.ep.mav, s, p_ned_m=p, k=self._inflation,
+                                                quality=self._odometry_quality, reset_counter=self.pose_resets,
+                                                sigma_att_rad=sigma_att))  # fmt: skip
+        self.stats.solutions_sent += 1
+        self._odometry_at_s = s.boot_s
+        if o.external_wind and f.in_outage and self._due_ap("wind", 1.0):
+            self.ep.send(outputs.external_wind(self.ep.mav, s, target=self.autopilot))
+
+    def _switch_sources(self, now: float) -> None:
+        sw = self.source_switch
+        if sw is None or self.autopilot is None or not math.isfinite(self._boot_now_s):
+            return
+        if now - self._last_ap_heartbeat >= AUTOPILOT_LOST_S:
+            return  # no command into a dead link: its tries would be spent on nothing
+        # ODOMETRY ArduPilot will fuse is flowing: the last one had quality ≥ 1 and is no older than 3 periods
+        fresh = self._boot_now_s - self._odometry_at_s <= 3.0 / self.cfg.outputs.solution_hz
+        sw.update(self.clock.filter_s(self._boot_now_s), now, solution_ok=fresh and self._odometry_quality >= 1)
 
     # ----------------------------------------------------------------------------------- periodic
     def _periodic(self, now: float) -> None:
@@ -547,7 +790,10 @@ class CompanionService:
                 self.ep.send(self.ep.mav.timesync_encode(0, time.monotonic_ns()))
             if self._due("streams", now, STREAM_CHECK_S):
                 self._request_streams()
+            if self._extnav and self.ekf_origin is None and self._due("origin", now, ORIGIN_REQUEST_S):
+                self._request_origin()
         self._send_solution(now)
+        self._switch_sources(now)
         if self.navlog is not None and self._due_ap("navlog", 1.0 / self.cfg.nav_log_hz):
             self._log_solution()
         if self._due("status", now, self.cfg.status_every_s):
@@ -651,6 +897,8 @@ class CompanionService:
                 f"duplicated {self.ep.duplicate_frames}, "
                 f"errors {sum(self.stats.handler_errors.values())}, latency p99 {lat['p99']:.2f} ms"
                 + (f", link gaps {len(self.stats.link_gaps)}" if self.stats.link_gaps else "")
+                + (f", EKF source set {self.source_switch.name(self.source_switch.active)}"
+                   if self.source_switch is not None else "")
                 + (f", STORAGE FAILING ({self.stats.last_storage_error})"
                    if self.stats.storage_errors else ""))  # fmt: skip
 
@@ -668,6 +916,15 @@ class CompanionService:
             "commands_refused": self.stats.commands_refused,
             "stream_caps_hz": dict(self.stream_caps_hz),
             "solutions_sent": self.stats.solutions_sent,
+            "odometry_without_origin": self.stats.odometry_without_origin,
+            "origin_requests": self.stats.origin_requests,
+            "ekf_origin": (
+                None
+                if self.ekf_origin is None
+                else [self.ekf_origin.lat_deg, self.ekf_origin.lon_deg, self.ekf_origin.alt_m]
+            ),
+            "pose_resets": self.pose_resets,
+            "source_switch": self.source_switch.summary() if self.source_switch is not None else None,
             "named_values_sent": self.stats.named_values_sent,
             "filter_resets": self.stats.filter_resets,
             "duplicates": sum(self.decoder.duplicates.get(k, 0) for k in IMU_SOURCES),

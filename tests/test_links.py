@@ -346,3 +346,30 @@ def test_shutdown_says_saved_only_when_the_state_file_was_written(
     out, path, saves = results["blocked"]
     assert "filter state NOT saved to" in out and "filter state saved" not in out and saves == 0
     assert not path.exists()
+
+
+def test_a_quiet_link_after_the_autopilot_is_lost_does_not_spin_the_loop(
+    design_deim12: dict[str, Path], models: Any, tmp_path: Path, udp: dict[str, socket.socket]
+) -> None:
+    """An autopilot heard, its periodic link upkeep (TIMESYNC, stream checks) scheduled, then silent: those
+    tasks stop being done while it is lost, and their passed due times must not make the loop poll with a zero
+    timeout (it spun at 60 % of a core, measured, until the service was stopped)."""
+    from firmware_bridge.service import AUTOPILOT_LOST_S, POLL_MAX_S, CompanionService
+
+    cfg = _service_config(tmp_path, design_deim12, "quiet", {})
+    svc = CompanionService(cfg, out=io.StringIO(), models=models)
+    to = ("127.0.0.1", svc.transport.local_address[1])
+    ap = _signer(AUTOPILOT)
+    udp["ap"].sendto(_pack(ap, _vehicle_heartbeat(ap)), to)
+    _wait(lambda: [svc._dispatch(m, svc.ep.received_at) for m in svc.ep.poll(0.05)] and svc.autopilot is not None,
+          5.0, "the autopilot's HEARTBEAT")  # fmt: skip
+    now = time.monotonic()
+    svc._periodic(now)  # TIMESYNC and the stream check scheduled (due again in 1 s and 3 s)
+    assert {"timesync", "streams"} <= set(svc._next)
+    svc._last_ap_heartbeat = now - AUTOPILOT_LOST_S - 1.0  # lost: those two are no longer done
+    later = now + 10.0
+    assert svc.poll_timeout(later) == pytest.approx(POLL_MAX_S)
+    end = time.monotonic() + 1.0
+    cpu0 = time.thread_time()
+    svc.run(lambda: time.monotonic() > end)  # one second of a quiet link, in this thread
+    assert time.thread_time() - cpu0 < 0.3, "the loop spun while the link was quiet"

@@ -225,7 +225,7 @@ def test_shipped_config_reads(tmp_path: Path) -> None:
         ({"streams.HIGHRES_IMUU": 100}, "streams.HIGHRES_IMUU: unknown MAVLink message"),
         ({"streams": "fast"}, "streams: expected auto or a mapping"),
         ({"connection": "udp://1.2.3.4:5"}, "connection:"),
-        ({"outputs.solution": "odometry"}, "outputs.solution: expected one of gps_input, none"),  # ardupilot
+        ({"outputs.solution": "global_position_sensor"}, "outputs.solution: expected one of gps_input, odometry, none"),
         ({"signing.require": True}, "signing.require: signing is required but no key_file"),
         ({"models.deim": "missing-dir"}, "models.deim:"),
         ({"navigation.mag_field_ned_ut": [0.2, 0.0, 0.4]}, "not an Earth field"),

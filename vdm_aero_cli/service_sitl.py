@@ -17,7 +17,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -55,6 +55,9 @@ class ServiceRun:
     signing_key_hex: str | None = None  # MAVLink 2 signing required on both sides (64 hex digits)
     # the autopilot's SCHED_LOOP_RATE, its fastest stream: raised from ArduPlane's 50 Hz as docs/service.md asks
     loop_rate_hz: float = 400.0
+    solution: str | None = None  # outputs.solution (default: the shipped config's)
+    # outputs.source_switch as (key, value) pairs, e.g. (("gnss_set", 1), ("extnav_set", 2)); None: as shipped
+    source_switch: tuple[tuple[str, float], ...] | None = None
 
 
 def free_udp_port() -> int:
@@ -63,9 +66,11 @@ def free_udp_port() -> int:
         return int(s.getsockname()[1])
 
 
-def write_config(run: ServiceRun, work: Path, port: int, mag_field_ned_ut: tuple[float, float, float]) -> Path:
-    """deploy/config.yaml with the paths and link of this run (every other key as shipped)."""
-    cfg = yaml.safe_load(DEPLOY_CONFIG.read_text())
+def write_config(run: ServiceRun, work: Path, port: int, mag_field_ned_ut: tuple[float, float, float],
+                 template: Path = DEPLOY_CONFIG) -> Path:  # fmt: skip
+    """deploy/config.yaml (``template``: another checkout's) with the paths and link of this run (every other key
+    as shipped)."""
+    cfg = yaml.safe_load(template.read_text())
     cfg["connection"] = f"udpin://127.0.0.1:{port}"
     cfg["models"].update(design_data=str(run.design_data), deim=str(run.deim),
                          deim_nn=str(run.deim_nn) if run.deim_nn else None)  # fmt: skip
@@ -82,6 +87,10 @@ def write_config(run: ServiceRun, work: Path, port: int, mag_field_ned_ut: tuple
     cfg["state"]["file"] = str(work / "state" / "filter-state.npz")
     cfg["nav_log"]["file"] = str(work / "state" / "nav.csv")
     cfg["status_every_s"] = 5
+    if run.solution is not None:
+        cfg["outputs"]["solution"] = run.solution
+    if run.source_switch is not None:
+        cfg["outputs"]["source_switch"] = dict(run.source_switch)
     if run.signing_key_hex is not None:
         (work / "signing.key").write_text(run.signing_key_hex + "\n")
         cfg["signing"] = {"key_file": str(work / "signing.key"), "require": True}
@@ -117,11 +126,13 @@ def _terminate(proc: subprocess.Popen[bytes], timeout_s: float = 20.0) -> int:
 UNPRIVILEGED = ("setpriv", "--no-new-privs", "--inh-caps=-all", "--ambient-caps=-all", "--bounding-set=-all", "--")
 
 
-def start_service(config: Path, work: Path, *, env: dict[str, str] | None = None,
-                  unprivileged: bool = False) -> subprocess.Popen[bytes]:  # fmt: skip
+def start_service(config: Path, work: Path, *, env: dict[str, str] | None = None, unprivileged: bool = False,
+                  wrap: Sequence[str] = ()) -> subprocess.Popen[bytes]:  # fmt: skip
+    """``vdm-aero serve`` as a process (``wrap``: a command prefix, e.g. ``taskset -c 1``; ``env``: added to
+    the environment, e.g. PYTHONPATH of another checkout)."""
     log = open(work / "serve.log", "ab")  # noqa: SIM115 - the child owns it for its lifetime
     prefix = UNPRIVILEGED if unprivileged else ()
-    cmd = [*prefix, *VDM_AERO, "serve", "--config", str(config), "--summary", str(work / "summary.json")]
+    cmd = [*wrap, *prefix, *VDM_AERO, "serve", "--config", str(config), "--summary", str(work / "summary.json")]
     return subprocess.Popen(
         cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env={**os.environ, **(env or {})}
     )
@@ -186,9 +197,15 @@ def autopilot_stream_args(config: Path) -> list[str]:
 
 
 def run_service_sitl(run: ServiceRun, work: Path, *, mag_field_ned_ut: tuple[float, float, float],
-                     timeout_s: float = 600.0,
-                     relay: Callable[[int, int], Any] | None = None) -> dict[str, Any]:  # fmt: skip
+                     timeout_s: float = 600.0, relay: Callable[[int, int], Any] | None = None,
+                     service_wrap: Sequence[str] = (), service_env: Mapping[str, str] | None = None,
+                     mock_wrap: Sequence[str] = (), config_template: Path = DEPLOY_CONFIG
+                     ) -> dict[str, Any]:  # fmt: skip
     """Fly ``run`` with the service and the mock as processes; returns paths, outage window and the summaries.
+
+    ``service_wrap`` / ``mock_wrap``: command prefixes (the budget benchmark pins each to its own core and
+    puts the service under a CPU quota); ``service_env``: added to the service's environment (the benchmark
+    runs the code before a change with its checkout on PYTHONPATH, and that checkout's ``config_template``).
 
     ``relay(listen_port, service_port)``: a link between them (an object with ``close()`` and ``stats``), e.g.
     a test's impaired UDP relay: the mock sends to ``listen_port``, the relay on to the service."""
@@ -199,9 +216,9 @@ def run_service_sitl(run: ServiceRun, work: Path, *, mag_field_ned_ut: tuple[flo
                   deim_nn=run.deim_nn.resolve() if run.deim_nn is not None else None)  # fmt: skip
     work.mkdir(parents=True, exist_ok=True)
     svc_port = free_udp_port()
-    config = write_config(run, work, svc_port, mag_field_ned_ut)
+    config = write_config(run, work, svc_port, mag_field_ned_ut, config_template)
     notify = NotifyListener()
-    service = start_service(config, work, env=notify.env)
+    service = start_service(config, work, env={**(service_env or {}), **notify.env}, wrap=service_wrap)
     procs: list[subprocess.Popen[bytes]] = []
     procs_relay: Any = None
     try:
@@ -219,7 +236,7 @@ def run_service_sitl(run: ServiceRun, work: Path, *, mag_field_ned_ut: tuple[flo
             procs_relay = relay(ap_port, svc_port)
         else:
             ap_url = f"udpout:127.0.0.1:{svc_port}"
-        cmd = [*VDM_AERO, "sitl", "--nav-scenario", run.scenario, "--seed", str(run.seed), "--outage-s",
+        cmd = [*mock_wrap, *VDM_AERO, "sitl", "--nav-scenario", run.scenario, "--seed", str(run.seed), "--outage-s",
                f"{run.outage_s:g}", "--ports-model", str(run.deim), "--connect", ap_url, "--speed", f"{run.speed:g}",
                "--truth", str(work / "truth.npz"), "--tlog", str(work / "mock.tlog"), "--loop-rate-hz",
                f"{run.loop_rate_hz:g}", "--json", *autopilot_stream_args(config)]  # fmt: skip

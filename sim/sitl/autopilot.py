@@ -4,8 +4,9 @@ From a companion's side it behaves like ArduPlane in AUTO (see docs/sitl.md): HE
 fixed-wing ArduPilot, telemetry at SRx_-like stream rates, MAV_CMD_SET_MESSAGE_INTERVAL /
 MAV_CMD_GET_MESSAGE_INTERVAL / MAV_CMD_REQUEST_MESSAGE / REQUEST_DATA_STREAM, TIMESYNC replies, the
 pressure ports as NAMED_VALUE_FLOAT (and optionally DEBUG_FLOAT_ARRAY) only once the link has heard
-from a remote component, GPS_INPUT and ODOMETRY recorded, optional signing. It never imports
-``firmware_bridge``: it is the peer the bridge is tested against.
+from a remote component, GPS_INPUT and ODOMETRY recorded and judged by ArduPilot's EKF3 rules (ekf_judge.py,
+extnav_judge.py), MAV_CMD_SET_EKF_SOURCE_SET, optional signing. It never imports ``firmware_bridge``: it is the
+peer the bridge is tested against.
 
 Time: the autopilot's clock is the world time (it boots at world time 0). ``speed`` paces world steps
 against the wall clock (1 = real time, 10 = ten times faster, 0 or inf = as fast as possible); all
@@ -29,6 +30,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from sim.flight.contract import BaroSample, ImuSample, World, WorldTick
 from sim.sitl.ekf_judge import Ekf3GpsRules, GpsInputJudge
+from sim.sitl.extnav_judge import SOURCE_SET_COUNT, Ek3ExtNavRules, ExtNavJudge, SourceXY
 from sim.sitl.faults import FaultSchedule
 from sim.sitl.link import Link, MavlinkEndpoint, MavlinkMessage, SigningConfig, open_link
 from sim.sitl.streams import (
@@ -102,6 +104,10 @@ class AutopilotOptions:
     second_sensors: SecondSensors = field(default_factory=SecondSensors)
     loop_rate_hz: float = PLANE_LOOP_RATE_HZ  # SCHED_LOOP_RATE: no stream is sent faster (streams.py)
     ekf_rules: Ekf3GpsRules = field(default_factory=Ekf3GpsRules)  # how EKF3 takes GPS_INPUT (ekf_judge.py)
+    extnav_rules: Ek3ExtNavRules = field(default_factory=Ek3ExtNavRules)  # EK3_SRCn_, VISO_ (extnav_judge.py)
+    # a Lua script's ahrs:set_posvelyaw_source_set on GNSS loss: this set (1..3) at each outage's start, set 1 at its
+    # end (None: no script; the companion's MAV_CMD_SET_EKF_SOURCE_SET only)
+    source_set_on_gnss_loss: int | None = None
 
 
 class RunSummary(TypedDict):
@@ -121,16 +127,23 @@ class RunSummary(TypedDict):
     # outage's end with them and without them (sim/sitl/ekf_judge.py)
     gps_input_verdicts: dict[str, int]
     outage_end_errors: list[dict[str, float]]
+    # the ODOMETRY (and VISION_POSITION_ESTIMATE) ArduPilot would use as ExternalNav, by verdict, and each switch of
+    # the EKF source set: {t_s, source_set (1..3), outage (index of the outage it fell in; -1 between outages)}
+    odometry_verdicts: dict[str, int]
+    odometry_outage_verdicts: dict[str, int]  # of the ODOMETRY that came during GNSS outages
+    source_set_switches: list[dict[str, float]]
 
 
 class _DeadReckoning:
     """The mock's own estimate error: the drift of :class:`DeadReckoningDrift`, and (``judge``) the same drift
-    with the GPS_INPUT fixes ArduPilot's EKF3 would fuse (sim/sitl/ekf_judge.py)."""
+    with the GPS_INPUT fixes and (``extnav``, into the same state) the ODOMETRY ArduPilot's EKF3 would fuse
+    (sim/sitl/ekf_judge.py, sim/sitl/extnav_judge.py)."""
 
-    def __init__(self, cfg: DeadReckoningDrift, judge: GpsInputJudge) -> None:
+    def __init__(self, cfg: DeadReckoningDrift, judge: GpsInputJudge, extnav: ExtNavJudge) -> None:
         self._cfg = cfg
         self._rng = np.random.default_rng(cfg.seed)
         self.judge = judge
+        self.extnav = extnav
         self.error_ned_m = np.zeros(3)  # without the companion's fixes
         self.error_rate_ned_m_s = np.zeros(3)
         self._v_err = np.zeros(3)
@@ -143,6 +156,7 @@ class _DeadReckoning:
                 sig = np.array([cfg.horizontal_velocity_sigma_m_s] * 2 + [cfg.vertical_velocity_sigma_m_s])
                 self._v_err = sig * self._rng.standard_normal(3)
                 self.judge.outage_started(self._v_err)
+                self.extnav.outage_started()
             dv = cfg.velocity_random_walk_m_s_per_sqrt_s * math.sqrt(dt_s) * self._rng.standard_normal(3)
             self._v_err = self._v_err + dv
             self.judge.propagate(dt_s, dv)
@@ -151,12 +165,17 @@ class _DeadReckoning:
         else:
             if self._in_outage:
                 self.judge.outage_ended(self.error_ned_m)
+                self.extnav.outage_ended()
             factor = math.exp(-dt_s / cfg.recovery_tau_s)
             decayed = self.error_ned_m * factor
             self.error_rate_ned_m_s = (decayed - self.error_ned_m) / dt_s
             self.error_ned_m = decayed
             self.judge.decay(factor)
         self._in_outage = outage
+
+    @property
+    def in_outage(self) -> bool:
+        return self._in_outage
 
     @property
     def estimate_error_ned_m(self) -> F64Array:
@@ -221,6 +240,9 @@ class MockAutopilot:
         if require_signing and signing_key is None:
             raise UserInputError("require_signing needs a signing key")
         self._options = options or AutopilotOptions()
+        on_loss = self._options.source_set_on_gnss_loss
+        if on_loss is not None and not 1 <= on_loss <= SOURCE_SET_COUNT:
+            raise UserInputError(f"source_set_on_gnss_loss = {on_loss}: a source set 1..{SOURCE_SET_COUNT}")
         self._world = world
         self._speed = speed
         self._realtime = 0.0 < speed < math.inf
@@ -245,7 +267,8 @@ class MockAutopilot:
         d = self._options.drift
         judge = GpsInputJudge(self._options.ekf_rules, velocity_sigma_m_s=d.horizontal_velocity_sigma_m_s,
                               random_walk_m_s_per_sqrt_s=d.velocity_random_walk_m_s_per_sqrt_s)  # fmt: skip
-        self._drift = _DeadReckoning(d, judge)
+        extnav = ExtNavJudge(self._options.extnav_rules, judge)
+        self._drift = _DeadReckoning(d, judge, extnav)
         self._second = _SecondSensors(self._options.second_sensors)
         self._stop = threading.Event()
         self._lock = threading.Lock()
@@ -355,6 +378,9 @@ class MockAutopilot:
             link=self.link.description,
             gps_input_verdicts=dict(self._drift.judge.verdicts),
             outage_end_errors=list(self._drift.judge.outage_end),
+            odometry_verdicts=dict(self._drift.extnav.verdicts),
+            odometry_outage_verdicts=dict(self._drift.extnav.outage_verdicts),
+            source_set_switches=list(self._drift.extnav.switches),
         )
 
     # ------------------------------------------------------------------------------------ the clock
@@ -411,7 +437,14 @@ class MockAutopilot:
         st.mag = tick.mag or st.mag
         st.airspeed = tick.airspeed or st.airspeed
         st.servos = tick.servos or st.servos
+        # the Lua script's switches, both counted in the outage (it starts in update, it ends after it)
+        on_loss = self._options.source_set_on_gnss_loss
+        loss_changed = on_loss is not None and tick.gnss_outage != self._drift.in_outage
+        if loss_changed and not tick.gnss_outage:
+            self._drift.extnav.set_source_set(1, truth.t_s)
         self._drift.update(dt, tick.gnss_outage)
+        if loss_changed and on_loss is not None and tick.gnss_outage:
+            self._drift.extnav.set_source_set(on_loss, truth.t_s)
         err = self._drift.estimate_error_ned_m
         pos_est = truth.pos_ned_m + err
         lat, lon, alt = self._frame.to_geodetic(float(pos_est[0]), float(pos_est[1]), float(pos_est[2]))
@@ -498,6 +531,8 @@ class MockAutopilot:
                 self._record_gps_input(msg, now_s)
             case "ODOMETRY":
                 self._record_odometry(msg, now_s)
+            case "VISION_POSITION_ESTIMATE":
+                self._judge_vision_position(msg)
             case _:
                 pass
 
@@ -540,6 +575,15 @@ class MockAutopilot:
         elif cmd == mavlink2.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
             self._ack(msg, mavlink2.MAV_RESULT_ACCEPTED)
             self._send(self._encoder.autopilot_version(self._state, now_s))
+        elif cmd == mavlink2.MAV_CMD_SET_EKF_SOURCE_SET:
+            # GCS_Common.cpp handle_command_set_ekf_source_set: param1 = 1..3 (uint32_t cast: truncated), else DENIED
+            p1 = float(msg.param1)
+            number = math.trunc(p1) if math.isfinite(p1) else 0
+            if not 1 <= number <= SOURCE_SET_COUNT:
+                self._ack(msg, mavlink2.MAV_RESULT_DENIED)
+                return
+            self._drift.extnav.set_source_set(number, now_s)
+            self._ack(msg, mavlink2.MAV_RESULT_ACCEPTED)
         else:
             self._ack(msg, mavlink2.MAV_RESULT_UNSUPPORTED)
 
@@ -573,6 +617,11 @@ class MockAutopilot:
         with self._lock:
             self._gps_inputs.append(rec)
         truth = self._state.truth
+        extnav = self._drift.extnav
+        if extnav.rules.sources.set(extnav.active_set).posxy != SourceXY.GPS:  # SelectVelPosFusion: not the source
+            if truth is not None and self._state.gnss_outage:
+                self._drift.judge.verdicts["source set: POSXY not GPS"] += 1
+            return
         if truth is not None and self._state.gnss_outage:
             p = np.asarray(self._frame.to_ned(rec.lat_deg, rec.lon_deg, rec.alt_m), dtype=np.float64).reshape(3)
             self._drift.judge.gps_input(
@@ -599,6 +648,23 @@ class MockAutopilot:
         )
         with self._lock:
             self._odometry.append(rec)
+        truth = self._state.truth
+        if truth is not None:
+            self._drift.extnav.odometry(
+                time_usec=rec.time_usec, frame_id=rec.frame_id, child_frame_id=rec.child_frame_id, pos_m=rec.pos_m,
+                q=rec.q, vel_m_s=rec.vel_m_s, pose_covariance=rec.pose_covariance, reset_counter=rec.reset_counter,
+                quality=rec.quality, truth_pos_ned_m=truth.pos_ned_m, truth_v_ned_m_s=truth.v_ned_m_s,
+                gnss_outage=self._state.gnss_outage,
+            )  # fmt: skip
+
+    def _judge_vision_position(self, msg: MavlinkMessage) -> None:
+        truth = self._state.truth
+        if truth is not None:
+            self._drift.extnav.vision_position_estimate(
+                usec=int(msg.usec), pos_m=np.array([msg.x, msg.y, msg.z], dtype=np.float64),
+                covariance=np.asarray(msg.covariance, dtype=np.float64), reset_counter=int(msg.reset_counter),
+                truth_pos_ned_m=truth.pos_ned_m, gnss_outage=self._state.gnss_outage,
+            )  # fmt: skip
 
 
 def run_sitl(

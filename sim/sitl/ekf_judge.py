@@ -146,15 +146,18 @@ class GpsInputJudge:
             return "gated (innovation > 5σ)"
         for axis in range(2):
             if vel_ok:
-                self._update(axis, 1, e_v[axis] - self.v_err_m_s[axis], sig_v**2)
+                self.fuse(axis, 1, e_v[axis] - self.v_err_m_s[axis], sig_v**2)
             if pos_ok:
-                self._update(axis, 0, e_p[axis] - self.p_err_m[axis], sig_p**2)
+                self.fuse(axis, 0, e_p[axis] - self.p_err_m[axis], sig_p**2)
         return "used" if pos_ok else "used (velocity only)"
 
     def _gate(self, innov: F64Array, var: F64Array, r: float) -> bool:
         return bool(np.all(innov**2 <= self.rules.gate_sigma**2 * (var + r)))
 
-    def _update(self, axis: int, i: int, innov: float, r: float) -> None:
+    def fuse(self, axis: int, i: int, innov: float, r: float) -> None:
+        """One scalar Kalman update of a direct observation of the position (``i`` = 0) or velocity (1) error on one
+        horizontal axis, innovation ``innov`` and variance ``r`` (FuseVelPosNED's sequential fusion; the ExternalNav
+        judge, sim/sitl/extnav_judge.py, fuses into the same state)."""
         p = self.P[axis]
         s = p[i, i] + r
         k = p[:, i] / s

@@ -99,6 +99,7 @@ MESSAGE_TABLE: tuple[MessageSpec, ...] = (
     MessageSpec("ATTITUDE_QUATERNION", None, 0.0),
     MessageSpec("HOME_POSITION", None, 0.0),
     MessageSpec("AUTOPILOT_VERSION", None, 0.0),
+    MessageSpec("GPS_GLOBAL_ORIGIN", None, 0.0),  # on request (MSG_ORIGIN): the EKF origin ExtNav positions are from
 )
 
 
@@ -356,6 +357,7 @@ class TelemetryEncoder:
             "WIND": self.wind,
             "HOME_POSITION": self.home_position,
             "AUTOPILOT_VERSION": self.autopilot_version,
+            "GPS_GLOBAL_ORIGIN": self.gps_global_origin,
         }
         assert set(self._builders) == {s.name for s in MESSAGE_TABLE}
 
@@ -625,6 +627,13 @@ class TelemetryEncoder:
             0.0,
             0.0,
             to_time_usec(t_s),
+        )
+
+    def gps_global_origin(self, state: SensorState, t_s: float) -> MavlinkMessage:
+        """The EKF origin (GCS_Common.cpp send_gps_global_origin: degE7, altitude AMSL in mm): the mock's EKF
+        origin is its home, where its estimate's NED frame starts (sim/sitl/extnav_judge.py)."""
+        return self._mav.gps_global_origin_encode(
+            to_deg_e7(state.home_lat_deg), to_deg_e7(state.home_lon_deg), to_mm(state.home_alt_m), to_time_usec(t_s)
         )
 
     def autopilot_version(self, state: SensorState, t_s: float) -> MavlinkMessage:
