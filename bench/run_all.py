@@ -298,6 +298,7 @@ BENCHES: dict[str, Callable[[int], dict[str, Any]]] = {
     "reliability-long-outage": reliability_bench.bench_long_outage,
     "reliability-load": reliability_bench.bench_load,
     "reliability-soak": reliability_bench.bench_soak,
+    "relay-cases": reliability_bench.bench_relay_cases,
 }
 
 

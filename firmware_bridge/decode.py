@@ -61,6 +61,12 @@ REBOOT_RUN: Final = 2  # samples in a row (at the 1 Hz a rebooted ArduPilot stre
 REBOOT_UPTIME_S: Final = 60.0  # ... starting this near the autopilot's boot
 REBOOT_RUN_S: Final = 2.0  # ... or going on this long (an autopilot first heard again long after its boot)
 REBOOT_RUN_GAP_S: Final = 2.0  # samples of one run are at most this far apart (a 1 Hz stream's, with jitter)
+# A run only this far behind the stream's latest is what a buffering radio's late re-sends also make: two of
+# them back to back came 2.4 times a minute at 1 % re-sent 0.7–1.2 s late at 400 Hz (make bench relay-cases,
+# measured: two false reboots in one flight). A reboot's first samples are the new boot's uptime, seconds behind
+# an autopilot up for minutes; one this close needs a longer run.
+REBOOT_NEAR_S: Final = 5.0
+REBOOT_RUN_NEAR: Final = 4
 AUTOPILOT_LOST_S: Final = 3.0  # no autopilot HEARTBEAT this long: another vehicle may take over
 SOURCE_LOST_S: Final = 1.0  # a better-ranked stream silent this long: the next one heard is used
 IMU_SOURCES: Final = ("HIGHRES_IMU", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3")
@@ -268,16 +274,19 @@ class MavlinkDecoder:
     def _reboot_run(self, kind: str, boot_s: float) -> bool:
         """An IMU sample older than its stream's latest: one stale frame (a buffering radio or router sending
         it again late), discarded and counted, or the first samples of a rebooted autopilot. A reboot is a run:
-        :data:`REBOOT_RUN` samples in a row, each newer than the one before and all a reboot's step older than
-        the stream's latest, starting near boot (under :data:`REBOOT_UPTIME_S`) — or lasting
+        :data:`REBOOT_RUN` samples in a row (:data:`REBOOT_RUN_NEAR` when under :data:`REBOOT_NEAR_S` behind the
+        stream's latest, where late re-sends also come), each newer than the one before and all a reboot's step
+        older than the stream's latest, starting near boot (under :data:`REBOOT_UPTIME_S`) — or lasting
         :data:`REBOOT_RUN_S`, for an autopilot heard again long after its boot. True when this sample
         confirms one."""
         run = self._older_run
         if run is None or run[0] != kind or not run[2] < boot_s <= run[2] + REBOOT_RUN_GAP_S:
             run = self._older_run = [kind, boot_s, boot_s, 0]
         run[2], run[3] = boot_s, int(run[3]) + 1
-        far = boot_s < self.boot_now_s - REBOOT_BACKSTEP_S
-        if far and run[3] >= REBOOT_RUN and (float(run[1]) < REBOOT_UPTIME_S or boot_s - float(run[1]) >= REBOOT_RUN_S):
+        behind = self.boot_now_s - boot_s
+        need = REBOOT_RUN if behind >= REBOOT_NEAR_S else REBOOT_RUN_NEAR
+        far = behind > REBOOT_BACKSTEP_S
+        if far and run[3] >= need and (float(run[1]) < REBOOT_UPTIME_S or boot_s - float(run[1]) >= REBOOT_RUN_S):
             self._older_run = None
             self._stamps.pop(kind, None)
             return True

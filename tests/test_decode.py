@@ -290,3 +290,34 @@ def test_a_component_other_than_autopilot1_is_never_the_autopilot() -> None:
         _feed(dec, imp_mav, imp_hb, 0.5 + k + 5.0)  # even after the autopilot has been silent 3 s
     assert dec.autopilot == (1, 1) and [a[0] for a in rec.ev["autopilot"] if a[1]] == [(1, 1)]
     assert dec.skipped["HEARTBEAT (a vehicle's, but not from MAV_COMP_ID_AUTOPILOT1)"] == 11
+
+
+def test_late_re_sends_back_to_back_are_not_a_reboot_but_a_reboot_soon_after_boot_is() -> None:
+    """Two samples re-sent 1.1 s late back to back, early in the flight (both near boot, both newer than the
+    one before): stale, not a reboot (the relay bench found two such false reboots a flight at 1 % re-sends).
+    An autopilot that rebooted 3 s after its boot is only that far behind too: confirmed by the fourth sample."""
+    from firmware_bridge.decode import REBOOT_RUN_NEAR
+
+    mav, hb = _mav()
+    rec = Recorder()
+    dec = MavlinkDecoder(rec)
+    _feed(dec, mav, hb, 0.0)
+    for k in range(4000):  # 400 Hz from 20 s of uptime
+        t = 20.0 + k / 400
+        _raw(dec, mav, t, t)
+        if k == 2000:
+            _raw(dec, mav, t - 1.1, t)
+            _raw(dec, mav, t - 1.1 + 1 / 400, t)
+    assert dec.stale == {"RAW_IMU": 2} and dec.clock.reboots == 0 and "reboot" not in rec.ev
+    rec2 = Recorder()
+    dec2 = MavlinkDecoder(rec2)
+    _feed(dec2, mav, hb, 0.0)
+    for k in range(1200):  # up 3 s, then rebooted: the new boot's samples from 0.1 s on
+        _raw(dec2, mav, k / 400, k / 400)
+    held = 0
+    for k in range(100):
+        _raw(dec2, mav, 0.1 + k / 400, 4.0 + k / 400)
+        if "reboot" in rec2.ev:
+            break
+        held += 1
+    assert held == REBOOT_RUN_NEAR - 1 and dec2.clock.reboots == 1

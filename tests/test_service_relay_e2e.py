@@ -1,6 +1,6 @@
 """End to end through a link as real links are (issue 23): the flight of ``survey_service_run`` (survey seed 1,
 60 s outage, vdm-deim) flown again with a relay between the mock and the service that sends every datagram by
-two routes, sends some again 0.7–1.2 s late, and puts a stranger on the service's port (tests/udp_relay.py).
+two routes, sends some again 0.7–1.2 s late, and puts a stranger on the service's port (sim/sitl/udp_relay.py).
 Against the clean run: the outage-end error within 1.2×, the fixes ArduPilot's rules would use (the mock's
 judge) in ≥ 90 % of the outage, and nothing sent to the stranger."""
 
@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 
-from tests.udp_relay import Impairments, UdpRelay
+from sim.sitl.udp_relay import Impairments, UdpRelay
 from vdm_aero_cli.service_sitl import run_service_sitl, score_service
 
 pytestmark = pytest.mark.slow

@@ -4,7 +4,8 @@ datagram again 0.7–1.2 s late, and a stranger on the service's port (a ground 
 RADIO_STATUS, another system's named values, a second component of our system calling itself the autopilot).
 Whatever the service sends to the stranger is counted.
 
-Test infrastructure: a thread in the test process, randomness from a seeded numpy Generator."""
+Part of the world, as the mock autopilot is: a thread in the caller's process (the end-to-end test, the relay
+cases of ``make bench``), randomness from a seeded numpy Generator."""
 
 from __future__ import annotations
 
