@@ -187,7 +187,7 @@ def bench_service(repeats: int) -> dict[str, Any]:
     import subprocess
     import sys
 
-    from bench.baseline import REPO, baseline_checkout, python_env
+    from bench.baseline import REPO, baseline_checkout
     from vdm_aero_cli.nav_bench import build_artifacts
     from vdm_aero_cli.service_sitl import ServiceRun, run_service_sitl, site_mag_field_ut
 
@@ -207,7 +207,7 @@ def bench_service(repeats: int) -> dict[str, Any]:
                                  ports_rate_hz=100.0)  # fmt: skip
                 # the other checkout's code: first on PYTHONPATH, and the working directory (``python -m`` puts it
                 # ahead of PYTHONPATH, and this one's is this checkout)
-                env = {"PYTHONPATH": python_env(tree)["PYTHONPATH"]} if tree is not None else None
+                env = {"PYTHONPATH": str(tree)} if tree is not None else None
                 cd = ["env", f"--chdir={tree}"] if tree is not None else []
                 res = run_service_sitl(run, Path(f"out/bench/service/{setup.split()[1]}-{name}-{k}").resolve(),
                                        mag_field_ned_ut=site_mag_field_ut(run), service_env=env,

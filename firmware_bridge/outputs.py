@@ -49,7 +49,7 @@ MAV_CMD_EXTERNAL_WIND_ESTIMATE = 43004  # MAVLink common (ArduPilot 4.5+); not i
 EKF_SMOOTHING_S = 1.0
 # GPS_INPUT ignore flags: we send no HDOP/VDOP-derived fields beyond the accuracies
 GPS_INPUT_IGNORE = mavlink2.GPS_INPUT_IGNORE_FLAG_HDOP | mavlink2.GPS_INPUT_IGNORE_FLAG_VDOP
-MAV_CMD_SET_EKF_SOURCE_SET = 42007  # ardupilotmega.xml; param1 = the source set, 1..3
+MAV_CMD_SET_EKF_SOURCE_SET = mavlink2.MAV_CMD_SET_EKF_SOURCE_SET  # 42007, ardupilotmega.xml: param1 = set 1..3
 # ODOMETRY.quality (MAVLink common): -1 the odometry has failed, 0 unknown, 1 worst … 100 best
 QUALITY_FAILED = -1
 QUALITY_FALLBACK_MAX = 50  # no port air data (airspeed dead reckoning): at most half, as GPS_INPUT's 2-D fix
@@ -208,7 +208,8 @@ def ardupilot_odometry(mav: mavlink2.MAVLink, s: Solution, *, p_ned_m: F64Array,
 def set_ekf_source_set(mav: mavlink2.MAVLink, *, target: tuple[int, int], source_set: int, confirmation: int
                        ) -> MavlinkMessage:  # fmt: skip
     """COMMAND_LONG MAV_CMD_SET_EKF_SOURCE_SET: param1 = the source set 1..3 (ArduPilot's
-    GCS_MAVLINK::handle_command_set_ekf_source_set: ACCEPTED for 1..3, else FAILED); ``confirmation`` 0 on the
+    GCS_MAVLINK::handle_command_set_ekf_source_set: ACCEPTED for 1..3, else refused; the exact result code was
+    not checked in its source here, and the service treats every refusal alike); ``confirmation`` 0 on the
     first transmission, +1 on each retransmission (the MAVLink command protocol)."""
     return mav.command_long_encode(target[0], target[1], MAV_CMD_SET_EKF_SOURCE_SET, min(confirmation, 255),
                                    float(source_set), 0, 0, 0, 0, 0, 0)  # fmt: skip

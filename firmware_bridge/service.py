@@ -117,7 +117,7 @@ class EkfSourceSwitch:
     * **Sent** on the autopilot's clock of the wish, then again every ``retry_s`` of local time with
       ``confirmation`` + 1 until COMMAND_ACK ACCEPTED, at most ``max_tries`` times; then given up (counted and
       said) until the wish changes or the autopilot reboots. IN_PROGRESS waits one more period;
-      TEMPORARILY_REJECTED is retried within the same bound; any other result (FAILED: not a set 1..3, DENIED,
+      TEMPORARILY_REJECTED is retried within the same bound; any other result (DENIED or FAILED: not a set 1..3,
       UNSUPPORTED: a build without it) is final for this wish. An ACK with nothing pending is counted, never
       acted on.
     * **A reboot** of the autopilot puts EKF3 back in set 1 (AP_NavEKF_Source::init). Nothing is sent while
