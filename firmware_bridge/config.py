@@ -28,6 +28,7 @@ __all__ = ["ConfigError", "ServiceConfig", "SourceSwitchConfig", "load_config"]
 AUTOPILOTS = ("ardupilot", "px4")
 SOLUTION_OUTPUTS = {"ardupilot": ("gps_input", "odometry", "none"),
                     "px4": ("global_position_sensor", "odometry", "none")}  # fmt: skip
+PX4_EV_MIN_HZ = 5.0  # EKF2's EV_MAX_INTERVAL (200 ms, strictly): ODOMETRY for PX4 faster than this [Hz]
 EKF_SOURCE_SETS = (1, 2, 3)  # EK3_SRC1_* … EK3_SRC3_* (AP_NavEKF_Source: AP_NAKEKF_SOURCE_SET_MAX = 3)
 PORT_SOURCES = ("named_value_float", "debug_float_array")
 # What ``streams: auto`` asks each autopilot for [Hz] (MAV_CMD_SET_MESSAGE_INTERVAL), from what each one sends:
@@ -387,6 +388,10 @@ def _read(r: _Node) -> ServiceConfig:
     if outputs.external_wind and autopilot != "ardupilot":
         raise o.fail("external_wind", "MAV_CMD_EXTERNAL_WIND_ESTIMATE is handled by ArduPilot only")
     switch = _source_switch(o, autopilot, outputs.solution)
+    if autopilot == "px4" and outputs.solution == "odometry" and outputs.solution_hz <= PX4_EV_MIN_HZ:
+        # ev_control.cpp: EV fusion starts only on a sample less than EV_MAX_INTERVAL (200 ms) after the last one
+        raise o.fail("solution_hz", f"PX4's EKF2 starts external-vision fusion only on ODOMETRY less than 200 ms "
+                                    f"apart: above {PX4_EV_MIN_HZ:g} Hz (10), got {outputs.solution_hz:g}")  # fmt: skip
     if switch is not None:
         outputs = replace(outputs, source_switch=switch)
     o.finish()

@@ -52,6 +52,7 @@ GPS_INPUT_IGNORE = mavlink2.GPS_INPUT_IGNORE_FLAG_HDOP | mavlink2.GPS_INPUT_IGNO
 MAV_CMD_SET_EKF_SOURCE_SET = mavlink2.MAV_CMD_SET_EKF_SOURCE_SET  # 42007, ardupilotmega.xml: param1 = set 1..3
 # ODOMETRY.quality (MAVLink common): -1 the odometry has failed, 0 unknown, 1 worst … 100 best
 QUALITY_FAILED = -1
+AGP_SENSOR_ID = 1  # GLOBAL_POSITION_SENSOR.id, what EKF2_AGP0_ID is set to (docs/service.md)
 QUALITY_FALLBACK_MAX = 50  # no port air data (airspeed dead reckoning): at most half, as GPS_INPUT's 2-D fix
 
 
@@ -119,9 +120,10 @@ def gps_input(mav: mavlink2.MAVLink, s: Solution, *, gps_id: int, k: float) -> M
 
 def global_position_sensor(mav: mavlink2.MAVLink, s: Solution, *, target: tuple[int, int], k: float
                            ) -> MavlinkMessage:  # fmt: skip
-    """GLOBAL_POSITION_SENSOR (296, PX4 auxiliary global position): degE7, m AMSL, eph/epv [m]."""
+    """GLOBAL_POSITION_SENSOR (296, PX4 auxiliary global position): degE7, m AMSL, eph/epv [m]; ``id``
+    :data:`AGP_SENSOR_ID` (PX4 main's EKF2_AGP0_ID takes the message whose id it names; 0 disables the slot)."""
     return mav.global_position_sensor_encode(
-        target[0], target[1], 0, round(s.boot_s * 1e6), 0, 0, 0,
+        target[0], target[1], AGP_SENSOR_ID, round(s.boot_s * 1e6), 0, 0, 0,
         round(s.lat_deg * 1e7), round(s.lon_deg * 1e7), math.nan, s.alt_m, k * s.sigma_h_m, k * s.sigma_v_m,
     )  # fmt: skip
 
@@ -147,16 +149,18 @@ def _v_body(s: Solution) -> F64Array:
     return dcm_from_quat(s.q_nb).T @ np.asarray(s.v_ned_m_s, dtype=np.float64)
 
 
-def odometry(mav: mavlink2.MAVLink, s: Solution, *, k: float) -> MavlinkMessage:
+def odometry(mav: mavlink2.MAVLink, s: Solution, *, k: float, quality: int, reset_counter: int) -> MavlinkMessage:
     """ODOMETRY (PX4 EKF2_EV_*): the pose in MAV_FRAME_LOCAL_NED of our origin, the velocity in the frame
     ``child_frame_id`` names, MAV_FRAME_BODY_FRD (v_b = C_nbᵀ·v_ned; PX4's mavlink_receiver maps that id to
     its body-frame velocity), with diagonal covariances (the velocity's is isotropic, so the rotation leaves
-    it as it is)."""
+    it as it is; EKF2_EV_NOISE_MD = 0 takes them, floored by EKF2_EVP_NOISE / EKF2_EVV_NOISE), ``quality``
+    (:func:`odometry_quality`; EKF2_EV_QMIN) and ``reset_counter`` (a jump of our pose: EKF2 resets onto it)."""
     pose_cov, vel_cov = _covariances(s, k)
     return mav.odometry_encode(
         round(s.boot_s * 1e6), mavlink2.MAV_FRAME_LOCAL_NED, mavlink2.MAV_FRAME_BODY_FRD,
         *(float(v) for v in s.p_ned_m), [float(v) for v in s.q_nb], *(float(v) for v in _v_body(s)),
-        math.nan, math.nan, math.nan, pose_cov, vel_cov, 0, mavlink2.MAV_ESTIMATOR_TYPE_VIO, 0,
+        math.nan, math.nan, math.nan, pose_cov, vel_cov, reset_counter % 256, mavlink2.MAV_ESTIMATOR_TYPE_VIO,
+        quality,
     )  # fmt: skip
 
 

@@ -294,6 +294,7 @@ class CompanionService:
         self._inflation = outputs.inflation(cfg.outputs.solution_hz)
         # ArduPilot's ExternalNav route: ODOMETRY in the NED frame of its EKF origin, and its source sets
         self._extnav = cfg.autopilot == "ardupilot" and cfg.outputs.solution == "odometry"
+        self._px4_vision = cfg.autopilot == "px4" and cfg.outputs.solution == "odometry"  # EKF2 external vision
         self.ekf_origin: LocalFrame | None = None  # GPS_GLOBAL_ORIGIN
         self.pose_resets = 0  # ODOMETRY.reset_counter: our pose jumped (re-initialised, or reset to a fix)
         self._odometry_quality = outputs.QUALITY_FAILED  # of the last ODOMETRY sent
@@ -713,6 +714,9 @@ class CompanionService:
         if self._extnav:  # not only in outages: ArduPilot needs ExternalNav data flowing before the switch
             self._send_extnav(f)
             return
+        if self._px4_vision:  # not only in outages: EKF2 learns the offset of our frame while it fuses GNSS
+            self._send_px4_odometry(f)
+            return
         if o.solution == "none" or f is None or not f.initialised or not f.in_outage or self.autopilot is None:
             return
         s = self._due_solution()
@@ -723,10 +727,8 @@ class CompanionService:
             self.ep.send(outputs.gps_input(self.ep.mav, s, gps_id=o.gps_id, k=k))
             if o.external_wind and self._due_ap("wind", 1.0):
                 self.ep.send(outputs.external_wind(self.ep.mav, s, target=self.autopilot))
-        elif o.solution == "global_position_sensor":
-            self.ep.send(outputs.global_position_sensor(self.ep.mav, s, target=self.autopilot, k=k))
         else:
-            self.ep.send(outputs.odometry(self.ep.mav, s, k=k))
+            self.ep.send(outputs.global_position_sensor(self.ep.mav, s, target=self.autopilot, k=k))
         self.stats.solutions_sent += 1
 
     def _due_solution(self) -> outputs.Solution | None:
@@ -760,6 +762,22 @@ class CompanionService:
         self._odometry_at_s = s.boot_s
         if o.external_wind and f.in_outage and self._due_ap("wind", 1.0):
             self.ep.send(outputs.external_wind(self.ep.mav, s, target=self.autopilot))
+
+    def _send_px4_odometry(self, f: NavFilter | None) -> None:
+        """PX4's external vision: ODOMETRY at ``solution_hz`` whenever the filter has a solution, in our local NED
+        frame. While EKF2 fuses GNSS its bias estimator learns the offset between that frame and its own
+        (ev_pos_control.cpp, ``_ev_pos_b_est``), and keeps it when GNSS is lost; sent only from the loss on, it would
+        start EV fusion on our frame's origin. EV fusion starts only on samples less than 200 ms apart
+        (ev_control.cpp, EV_MAX_INTERVAL), hence solution_hz above 5 (firmware_bridge/config.py)."""
+        if f is None or not f.initialised or self.autopilot is None:
+            return
+        s = self._due_solution()
+        if s is None:
+            return
+        quality = outputs.odometry_quality(s, max_sigma_m=self.cfg.outputs.max_sigma_m, fallback=f.fallback)
+        self.ep.send(outputs.odometry(self.ep.mav, s, k=self._inflation, quality=quality,
+                                      reset_counter=self.pose_resets))  # fmt: skip
+        self.stats.solutions_sent += 1
 
     def _switch_sources(self, now: float) -> None:
         sw = self.source_switch

@@ -6,6 +6,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
+from pymavlink.dialects.v20.ardupilotmega import GPS_INPUT_IGNORE_FLAG_SPEED_ACCURACY
 
 from sim.sitl.ekf_judge import Ekf3GpsRules, GpsInputJudge
 
@@ -83,3 +85,145 @@ def test_a_fix_that_understates_its_error_is_gated_and_honest_fixes_help() -> No
     j.outage_ended(np.array([*free, 0.0]))
     (end,) = j.outage_end
     assert end["with_service_m"] < 5.0 < 50.0 < end["without_m"]
+
+
+# ---------------------------------------------------------------------------------------- GPS_AUTO_SWITCH
+REAL = dict(real_fix_type=3, real_h_acc_m=1.0, real_speed_acc_m_s=0.25)  # the real receiver, both accuracies
+BLENDED = "blended (weight 0.15)"  # GPS_INPUT 3 m / 0.5 m/s: position 0.1, speed 0.2 by inverse variance
+
+
+def _rules_judge(**rules: int) -> GpsInputJudge:
+    return GpsInputJudge(Ekf3GpsRules(**rules), velocity_sigma_m_s=SIG_V, random_walk_m_s_per_sqrt_s=RW)
+
+
+def _in_outage(j: GpsInputJudge, seconds: float = 10.0) -> None:
+    j.outage_started(np.array([0.5, -0.3, 0.0]))
+    for _ in range(round(seconds / 0.2)):
+        j.propagate(0.2, np.zeros(3))
+
+
+def _exact(j: GpsInputJudge, **kw: object) -> str:
+    """A fix exactly where the estimate already is (no innovation): used whenever it is read."""
+    return _fix(j, (float(j.p_err_m[0]), float(j.p_err_m[1])), vel_error_ne_m_s=j.v_err_m_s.copy(), **kw)
+
+
+def test_an_unknown_auto_switch_is_refused() -> None:
+    with pytest.raises(ValueError, match="GPS_AUTO_SWITCH 5"):
+        Ekf3GpsRules(auto_switch=5)
+
+
+def test_auto_switch_0_reads_gps_primary_only_and_3_is_the_second_instance() -> None:
+    """0: GPS_PRIMARY (default the real receiver) always, outage or not: the MAV instance is never fused. 3 is
+    converted at boot to 0 with GPS_PRIMARY 1: the MAV instance always, even with no fix."""
+    j = _rules_judge(auto_switch=0)
+    _in_outage(j)
+    before = j.p_err_m.copy()
+    assert _fix(j, (0.0, 0.0)) == "not primary (GPS_AUTO_SWITCH 0: GPS_PRIMARY always)"
+    np.testing.assert_array_equal(j.p_err_m, before)
+    for rules in ({"auto_switch": 0, "primary": 1}, {"auto_switch": 3}):
+        k = _rules_judge(**rules)
+        _in_outage(k)
+        assert _exact(k) == "used", rules
+        assert _exact(k, fix_type=1) == "no fix (readGpsData reads 3-D only)", rules
+        assert _exact(k, real_fix_type=3) == "used", rules  # a real fix changes nothing: no switching
+
+
+def test_auto_switch_4_keeps_gps_primary_while_it_has_a_3d_fix() -> None:
+    j = _rules_judge(auto_switch=4)
+    _in_outage(j)
+    assert _exact(j) == "used"  # GPS_PRIMARY (the real receiver) has no fix: use best
+    k = _rules_judge(auto_switch=4)  # no outage: the real receiver has its 3-D fix
+    assert _exact(k, real_fix_type=3) == "not primary (GPS_AUTO_SWITCH 4: GPS_PRIMARY has a 3-D fix)"
+    m = _rules_judge(auto_switch=4, primary=1)  # the MAV instance preferred: read beside a healthy receiver ...
+    assert _exact(m, real_fix_type=3) == "primary outside an outage (not fused: the estimate follows GNSS)"
+    assert _exact(m, real_fix_type=3, fix_type=2) == "2-D fix (readGpsData reads 3-D only)"  # ... at 3-D only
+    assert not m.outage_verdicts and sum(m.verdicts.values()) == 2
+
+
+def test_blending_in_an_outage_is_the_mav_instance_alone() -> None:
+    """The real receiver has no fix: _calc_weights fails, update_primary falls back to use best. The same drift
+    and fixes give GPS_AUTO_SWITCH 2 exactly the verdicts and the estimate of 1."""
+    judges = [_rules_judge(auto_switch=1), _rules_judge(auto_switch=2)]
+    rng = np.random.default_rng(11)
+    dvs = RW * math.sqrt(0.2) * rng.standard_normal((300, 3))
+    fixes = [(2.0 * rng.standard_normal(2), 0.3 * rng.standard_normal(2), int(rng.integers(1, 4))) for _ in dvs]
+    real = REAL | {"real_fix_type": 1}  # no fix, its accuracies still reported
+    for j in judges:
+        j.outage_started(np.array([0.8, -0.6, 0.0]))
+        for k, (dv, (e_p, e_v, fix)) in enumerate(zip(dvs, fixes, strict=True)):
+            j.propagate(0.2, dv)
+            _fix(j, tuple(e_p), vel_error_ne_m_s=e_v, fix_type=fix, h_acc_m=4.0, t_s=0.2 * k, **real)
+    best, blend = judges
+    assert blend.verdicts == best.verdicts and blend.outage_verdicts == blend.verdicts
+    assert blend.verdicts["used"] > 50 and blend.verdicts["2-D fix (readGpsData reads 3-D only)"] > 50
+    assert not any(v.startswith(("blended", "not blended")) for v in blend.verdicts)
+    np.testing.assert_array_equal(blend.p_err_m, best.p_err_m)
+    assert blend.blend_health == 100
+
+
+def test_blended_outside_an_outage_by_inverse_variance_counted_not_fused() -> None:
+    """Both with 3-D fixes: EKF3 reads the blended instance. GPS_BLEND_MASK 5 averages the position weight
+    (1/3²)/(1/3² + 1/1²) = 0.1 and the speed weight (1/0.5²)/(1/0.5² + 1/0.25²) = 0.2."""
+    j = _rules_judge(auto_switch=2)
+    assert _fix(j, (20.0, 0.0), speed_acc_m_s=0.5, **REAL) == BLENDED
+    np.testing.assert_array_equal(j.p_err_m, np.zeros(2))  # not fused: the estimate follows GNSS here
+    assert j.verdicts == {BLENDED: 1} and not j.outage_verdicts
+    # vertical (bit 1) 4 m against 2 m: 0.2 alone; all three: (0.1 + 0.2 + 0.2) / 3
+    for mask, weight in ((1, 0.10), (4, 0.20), (2, 0.20), (7, 0.17)):
+        k = _rules_judge(auto_switch=2, blend_mask=mask)
+        v = _fix(k, (0.0, 0.0), speed_acc_m_s=0.5, v_acc_m=4.0, real_v_acc_m=2.0, **REAL)
+        assert v == f"blended (weight {weight:.2f})", mask
+    # the default real receiver outside an outage (no accuracies given): nothing to weigh
+    assert _fix(_rules_judge(auto_switch=2), (0.0, 0.0)) == (
+        "not blended (no accuracy to weigh by GPS_BLEND_MASK): the real receiver is primary"
+    )
+
+
+def test_blend_metrics_need_both_receivers_and_the_weights_need_fresh_finite_fixes() -> None:
+    """A metric one receiver taking part does not report is dropped; speed and vertical weigh 3-D fixes only
+    (a 2-D GPS_INPUT weighs by position alone); infinite accuracies or fixes ≥ 0.4 s apart stop blending."""
+
+    def verdict(**kw: object) -> str:
+        return _fix(_rules_judge(auto_switch=2), (0.0, 0.0), speed_acc_m_s=0.5, **REAL | kw)
+
+    assert verdict(real_speed_acc_m_s=None) == "blended (weight 0.10)"  # position only
+    assert verdict(ignore_flags=GPS_INPUT_IGNORE_FLAG_SPEED_ACCURACY) == "blended (weight 0.10)"
+    assert verdict(fix_type=2) == "blended (weight 0.05)"  # position 0.1; speed: the real receiver alone (0)
+    assert verdict(real_fix_type=2) == "blended (weight 0.55)"  # position 0.1; speed: the MAV instance alone (1)
+    stop = "not blended ({}): the real receiver is primary"
+    assert verdict(real_h_acc_m=None, real_speed_acc_m_s=None) == stop.format("no accuracy to weigh by GPS_BLEND_MASK")
+    assert verdict(h_acc_m=math.inf) == stop.format("an accuracy is infinite")
+    assert verdict(real_age_s=0.4) == stop.format("their last fixes ≥ 0.4 s apart")
+    assert verdict(real_age_s=0.39) == BLENDED
+    # the real receiver without a fix outside an outage: no blending, use best makes the MAV instance primary
+    assert verdict(real_fix_type=1) == "primary outside an outage (not fused: the estimate follows GNSS)"
+
+
+def test_blending_resumes_only_as_the_health_counter_decays_after_an_outage() -> None:
+    """The outage saturates calc_weights' counter (100); at 5 Hz each GPS_INPUT brings 10 good 50 Hz updates
+    (−1 each): blending (counter < 50) resumes with the 6th. At 1 Hz the MAV instance's data is ≥ 0.4 s old for
+    30 of each 50 updates (+10 each): never."""
+    for hz, first_blended in ((5.0, 6), (1.0, None)):
+        j = _rules_judge(auto_switch=2)
+        _in_outage(j, 5.0)
+        t = 0.0
+        for _ in range(5):
+            t += 1.0 / hz
+            assert _exact(j, t_s=t, real_fix_type=1) == "used"
+        j.outage_ended(np.zeros(3))
+        seen = []
+        for _ in range(20):
+            t += 1.0 / hz
+            seen.append(_fix(j, (0.0, 0.0), speed_acc_m_s=0.5, t_s=t, **REAL))
+        off = "not blended (health counter ≥ 50): the real receiver is primary"
+        n = first_blended or len(seen) + 1
+        assert seen == [off] * (n - 1) + [BLENDED] * (len(seen) - n + 1), (hz, seen)
+    quiet = _rules_judge(auto_switch=2)  # no GPS_INPUT in the outage: the fix's loss alone saturated the counter
+    _in_outage(quiet)
+    quiet.outage_ended(np.zeros(3))
+    assert _fix(quiet, (0.0, 0.0), speed_acc_m_s=0.5, t_s=100.0, **REAL).startswith("not blended (health counter")
+    assert quiet.blend_health == 99
+    settled = _rules_judge(auto_switch=2)  # without t_s the counter is taken as settled
+    _in_outage(settled)
+    settled.outage_ended(np.zeros(3))
+    assert _fix(settled, (0.0, 0.0), speed_acc_m_s=0.5, **REAL) == BLENDED

@@ -46,7 +46,7 @@ def test_service_against_the_mock_matches_the_benchmark(survey_service_run: dict
     assert a <= score["gps_input_first_s"] < a + 2.0 and score["gps_input_last_s"] < b + 1.0
     assert set(score["gps_input_fix_types"]) <= {2, 3}
     # the mock judges each GPS_INPUT by ArduPilot's rules (sim/sitl/ekf_judge.py): EKF3 would use ≥ 90 % of them
-    verdicts = res["mock"]["gps_input_verdicts"]
+    verdicts = res["mock"]["gps_input_outage_verdicts"]
     assert verdicts.get("used", 0) >= 0.9 * sum(verdicts.values()), verdicts
     ((end,),) = [res["mock"]["outage_end_errors"]]
     assert math.isfinite(end["with_service_m"]) and math.isfinite(end["without_m"])

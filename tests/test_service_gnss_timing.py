@@ -16,7 +16,7 @@ from tests.test_fault_inputs import WARM_S, WARM_T0_S, _Autopilot, _close, _serv
 CASES = [
     ({}, 0.12),
     ({"navigation.gnss_latency_s": 0.2}, 0.2),
-    ({"autopilot": "px4", "outputs.solution": "odometry"}, 0.11),
+    ({"autopilot": "px4", "outputs.solution": "odometry", "outputs.solution_hz": 10}, 0.11),
 ]
 
 

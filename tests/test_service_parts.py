@@ -211,7 +211,8 @@ def test_shipped_config_reads(tmp_path: Path) -> None:
     # (which carries its barometer and airspeed sensor)
     assert "HIGHRES_IMU" not in cfg.streams and cfg.streams["RAW_IMU"] >= 200
     assert {"SCALED_PRESSURE", "GPS_RAW_INT", "SERVO_OUTPUT_RAW", "SYSTEM_TIME", "ATTITUDE"} <= set(cfg.streams)
-    px4 = load_config(_config(tmp_path, {"autopilot": "px4", "outputs.solution": "odometry"}))
+    px4_edit: dict[str, object] = {"autopilot": "px4", "outputs.solution": "odometry", "outputs.solution_hz": 10}
+    px4 = load_config(_config(tmp_path, px4_edit))
     assert "RAW_IMU" not in px4.streams and px4.streams["HIGHRES_IMU"] >= 100 and "SCALED_PRESSURE" not in px4.streams
     mine = load_config(_config(tmp_path, {"streams.SCALED_IMU": 20}))
     assert mine.streams == {"SCALED_IMU": 20}  # a mapping replaces the set
@@ -226,6 +227,8 @@ def test_shipped_config_reads(tmp_path: Path) -> None:
         ({"streams": "fast"}, "streams: expected auto or a mapping"),
         ({"connection": "udp://1.2.3.4:5"}, "connection:"),
         ({"outputs.solution": "global_position_sensor"}, "outputs.solution: expected one of gps_input, odometry, none"),
+        # EKF2 starts external vision only on ODOMETRY < 200 ms apart (ev_control.cpp): 5 Hz would never start it
+        ({"outputs.solution_hz": 5, "autopilot": "px4", "outputs.solution": "odometry"}, "outputs.solution_hz: PX4's"),
         ({"signing.require": True}, "signing.require: signing is required but no key_file"),
         ({"models.deim": "missing-dir"}, "models.deim:"),
         ({"navigation.mag_field_ned_ut": [0.2, 0.0, 0.4]}, "not an Earth field"),
@@ -288,13 +291,15 @@ def test_px4_outputs_decode() -> None:
     g = _roundtrip(global_position_sensor(mav, s, target=(1, 1), k=2.0))  # type: ignore[arg-type]
     assert (g.lat * 1e-7, g.lon * 1e-7) == pytest.approx((42.2830335, -71.3500307), abs=1e-7)
     assert (g.alt, g.eph, g.epv) == pytest.approx((155.6, 24.0, 4.0), abs=2e-5)  # float32 fields
-    o = _roundtrip(odometry(mav, s, k=2.0))  # type: ignore[arg-type]
+    o = _roundtrip(odometry(mav, s, k=2.0, quality=77, reset_counter=258))  # type: ignore[arg-type]
     assert (o.frame_id, o.child_frame_id) == (mavlink2.MAV_FRAME_LOCAL_NED, mavlink2.MAV_FRAME_BODY_FRD)
+    assert (o.quality, o.reset_counter) == (77, 2)  # a uint8 counter wraps
     assert (o.x, o.y, o.z, o.vx) == pytest.approx((10.0, -20.0, -105.0, 18.0))
     # the velocity is in the frame child_frame_id names: heading east, the body's x is east and y south
     from vdm_aero.rotation import quat_from_euler
 
-    east = _roundtrip(odometry(mav, replace(s, q_nb=np.array(quat_from_euler(0.0, 0.0, math.pi / 2))), k=2.0))  # type: ignore[arg-type]
+    east_s = replace(s, q_nb=np.array(quat_from_euler(0.0, 0.0, math.pi / 2)))
+    east = _roundtrip(odometry(mav, east_s, k=2.0, quality=1, reset_counter=0))  # type: ignore[arg-type]
     assert (east.vx, east.vy, east.vz) == pytest.approx((-3.0, -18.0, 0.5), abs=1e-5)
     assert east.velocity_covariance[0] == east.velocity_covariance[6] == pytest.approx((2.0 * 0.8) ** 2)
     assert (o.pose_covariance[0], o.pose_covariance[6], o.pose_covariance[11]) == pytest.approx((576.0, 576.0, 16.0))

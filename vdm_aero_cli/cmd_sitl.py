@@ -62,6 +62,12 @@ def register(sub: Any) -> None:
     p.add_argument("--faults", type=Path, metavar="FILE",
                    help="scripted link and sensor faults in autopilot time (YAML, see docs/reliability.md): link "
                    "silence, GNSS jump/drift, stuck/NaN/missing/out-of-range ports, message floods")  # fmt: skip
+    p.add_argument("--firmware", choices=("ardupilot", "px4"), default="ardupilot",
+                   help="whose rules the mock follows: its HEARTBEAT, HIGHRES_IMU's differential pressure, and "
+                   "how its EKF takes the companion's GPS_INPUT / ODOMETRY / GLOBAL_POSITION_SENSOR")  # fmt: skip
+    p.add_argument("--px4-release", choices=("v1.16", "main"), default="v1.16",
+                   help="with --firmware px4: v1.16 has no handler for GLOBAL_POSITION_SENSOR (296), main (2026) "
+                   "takes it as auxiliary global position (sim/sitl/ekf2_judge.py)")  # fmt: skip
     p.add_argument("--json", action="store_true", help="print the run summary as JSON")
     p.set_defaults(func=run_sitl_cmd)
 
@@ -121,6 +127,7 @@ def run_sitl_cmd(args: argparse.Namespace) -> int:
         raise UserInputError("--speed: must be a finite number ≥ 0 (0 = as fast as possible)")
     from sim.flight.world import FlightWorld
     from sim.sitl.autopilot import AutopilotOptions, DeadReckoningDrift, run_sitl
+    from sim.sitl.ekf2_judge import Ekf2Rules
     from sim.sitl.faults import load_faults
 
     faults = load_faults(args.faults) if args.faults is not None else None
@@ -148,6 +155,8 @@ def run_sitl_cmd(args: argparse.Namespace) -> int:
             ports_as_debug_array=args.ports_debug_array,
             options=AutopilotOptions(
                 gcs_recording=args.gcs_recording,
+                firmware=args.firmware,
+                ekf2_rules=Ekf2Rules(release=args.px4_release, agp_handler=args.px4_release == "main"),
                 faults=faults,
                 # the autopilot's own drift drawn per benchmark seed, not the same draw on every flight
                 drift=DeadReckoningDrift(seed=args.seed if args.nav_scenario else 0),

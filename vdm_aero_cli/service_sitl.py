@@ -58,6 +58,9 @@ class ServiceRun:
     solution: str | None = None  # outputs.solution (default: the shipped config's)
     # outputs.source_switch as (key, value) pairs, e.g. (("gnss_set", 1), ("extnav_set", 2)); None: as shipped
     source_switch: tuple[tuple[str, float], ...] | None = None
+    autopilot: str = "ardupilot"  # the config's autopilot, and whose rules the mock follows (sitl --firmware)
+    px4_release: str = "v1.16"  # as PX4: the release whose EKF2 the mock plays (sitl --px4-release)
+    solution_hz: float | None = None  # outputs.solution_hz (default: the shipped config's)
 
 
 def free_udp_port() -> int:
@@ -72,6 +75,7 @@ def write_config(run: ServiceRun, work: Path, port: int, mag_field_ned_ut: tuple
     as shipped)."""
     cfg = yaml.safe_load(template.read_text())
     cfg["connection"] = f"udpin://127.0.0.1:{port}"
+    cfg["autopilot"] = run.autopilot
     cfg["models"].update(design_data=str(run.design_data), deim=str(run.deim),
                          deim_nn=str(run.deim_nn) if run.deim_nn else None)  # fmt: skip
     cfg["navigation"]["mode"] = run.mode
@@ -89,6 +93,8 @@ def write_config(run: ServiceRun, work: Path, port: int, mag_field_ned_ut: tuple
     cfg["status_every_s"] = 5
     if run.solution is not None:
         cfg["outputs"]["solution"] = run.solution
+    if run.solution_hz is not None:
+        cfg["outputs"]["solution_hz"] = run.solution_hz
     if run.source_switch is not None:
         cfg["outputs"]["source_switch"] = dict(run.source_switch)
     if run.signing_key_hex is not None:
@@ -239,7 +245,8 @@ def run_service_sitl(run: ServiceRun, work: Path, *, mag_field_ned_ut: tuple[flo
         cmd = [*mock_wrap, *VDM_AERO, "sitl", "--nav-scenario", run.scenario, "--seed", str(run.seed), "--outage-s",
                f"{run.outage_s:g}", "--ports-model", str(run.deim), "--connect", ap_url, "--speed", f"{run.speed:g}",
                "--truth", str(work / "truth.npz"), "--tlog", str(work / "mock.tlog"), "--loop-rate-hz",
-               f"{run.loop_rate_hz:g}", "--json", *autopilot_stream_args(config)]  # fmt: skip
+               f"{run.loop_rate_hz:g}", "--firmware", run.autopilot, "--px4-release", run.px4_release, "--json",
+               *autopilot_stream_args(config)]  # fmt: skip
         if run.ports_source == "debug_float_array":
             cmd.append("--ports-debug-array")
         if run.stop_after_s is not None:

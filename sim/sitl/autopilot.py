@@ -1,4 +1,5 @@
-"""The SITL mock autopilot: an ArduPlane-like MAVLink 2 peer driven by a :class:`~sim.flight.contract.World`.
+"""The SITL mock autopilot: an ArduPlane-like (or, ``AutopilotOptions.firmware = "px4"``, a PX4-like) MAVLink 2
+peer driven by a :class:`~sim.flight.contract.World`.
 
 From a companion's side it behaves like ArduPlane in AUTO (see docs/sitl.md): HEARTBEAT at 1 Hz as a
 fixed-wing ArduPilot, telemetry at SRx_-like stream rates, MAV_CMD_SET_MESSAGE_INTERVAL /
@@ -7,6 +8,11 @@ pressure ports as NAMED_VALUE_FLOAT (and optionally DEBUG_FLOAT_ARRAY) only once
 from a remote component, GPS_INPUT and ODOMETRY recorded and judged by ArduPilot's EKF3 rules (ekf_judge.py,
 extnav_judge.py), MAV_CMD_SET_EKF_SOURCE_SET, optional signing. It never imports ``firmware_bridge``: it is the
 peer the bridge is tested against.
+
+As PX4 it changes what PX4 does differently for a companion: HEARTBEAT as PX4 in AUTO.MISSION, HIGHRES_IMU
+carrying the airspeed sensor's differential pressure, no MAV_CMD_SET_EKF_SOURCE_SET (UNSUPPORTED), and GPS_INPUT,
+ODOMETRY and GLOBAL_POSITION_SENSOR judged by EKF2's rules (ekf2_judge.py) instead of EKF3's. The drift of its own
+estimate through an outage is the same model.
 
 Time: the autopilot's clock is the world time (it boots at world time 0). ``speed`` paces world steps
 against the wall clock (1 = real time, 10 = ten times faster, 0 or inf = as fast as possible); all
@@ -29,12 +35,14 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from sim.flight.contract import BaroSample, ImuSample, World, WorldTick
+from sim.sitl.ekf2_judge import Ekf2Judge, Ekf2Rules
 from sim.sitl.ekf_judge import Ekf3GpsRules, GpsInputJudge
 from sim.sitl.extnav_judge import SOURCE_SET_COUNT, Ek3ExtNavRules, ExtNavJudge, SourceXY
 from sim.sitl.faults import FaultSchedule
 from sim.sitl.link import Link, MavlinkEndpoint, MavlinkMessage, SigningConfig, open_link
 from sim.sitl.streams import (
     DEBUG_FLOAT_ARRAY_LEN,
+    FIRMWARES,
     PLANE_LOOP_RATE_HZ,
     NavEstimate,
     SensorState,
@@ -92,6 +100,7 @@ class AutopilotOptions:
 
     system_id: int = 1
     component_id: int = 1
+    firmware: str = "ardupilot"  # whose rules the mock follows: "ardupilot" or "px4" (streams.FIRMWARES)
     debug_array_id: int = 0  # DEBUG_FLOAT_ARRAY.array_id of the ports
     unix_time_at_boot_s: float | None = None  # SYSTEM_TIME/tlog epoch; None: the wall clock when run() starts
     drift: DeadReckoningDrift = field(default_factory=DeadReckoningDrift)
@@ -108,6 +117,7 @@ class AutopilotOptions:
     # a Lua script's ahrs:set_posvelyaw_source_set on GNSS loss: this set (1..3) at each outage's start, set 1 at its
     # end (None: no script; the companion's MAV_CMD_SET_EKF_SOURCE_SET only)
     source_set_on_gnss_loss: int | None = None
+    ekf2_rules: Ekf2Rules = field(default_factory=Ekf2Rules)  # as PX4: how EKF2 takes them (ekf2_judge.py)
 
 
 class RunSummary(TypedDict):
@@ -126,12 +136,17 @@ class RunSummary(TypedDict):
     # the GPS_INPUT fixes ArduPilot's EKF3 would use, by verdict, and the mock's own horizontal error at each
     # outage's end with them and without them (sim/sitl/ekf_judge.py)
     gps_input_verdicts: dict[str, int]
+    gps_input_outage_verdicts: dict[str, int]  # of the GPS_INPUT that came during GNSS outages
     outage_end_errors: list[dict[str, float]]
     # the ODOMETRY (and VISION_POSITION_ESTIMATE) ArduPilot would use as ExternalNav, by verdict, and each switch of
     # the EKF source set: {t_s, source_set (1..3), outage (index of the outage it fell in; -1 between outages)}
     odometry_verdicts: dict[str, int]
     odometry_outage_verdicts: dict[str, int]  # of the ODOMETRY that came during GNSS outages
     source_set_switches: list[dict[str, float]]
+    # as PX4: per message (GPS_INPUT, ODOMETRY, GLOBAL_POSITION_SENSOR) the verdicts of EKF2's rules, all and of
+    # those that came during GNSS outages (sim/sitl/ekf2_judge.py); empty as ArduPilot
+    ekf2_verdicts: dict[str, dict[str, int]]
+    ekf2_outage_verdicts: dict[str, dict[str, int]]
 
 
 class _DeadReckoning:
@@ -214,7 +229,8 @@ class _SecondSensors:
 
 
 class MockAutopilot:
-    """An ArduPlane-like MAVLink autopilot fed by ``world``, on the transport ``url`` (or a ready :class:`Link`).
+    """An ArduPlane-like (or PX4-like: ``options.firmware``) MAVLink autopilot fed by ``world``, on the transport
+    ``url`` (or a ready :class:`Link`).
 
     The link is opened here (so a test can read a bound port or a pty path before ``run``) and released
     by ``close()`` / the context manager. ``run`` is blocking and may be called once; ``stop()`` from
@@ -243,6 +259,11 @@ class MockAutopilot:
         on_loss = self._options.source_set_on_gnss_loss
         if on_loss is not None and not 1 <= on_loss <= SOURCE_SET_COUNT:
             raise UserInputError(f"source_set_on_gnss_loss = {on_loss}: a source set 1..{SOURCE_SET_COUNT}")
+        if self._options.firmware not in FIRMWARES:
+            raise UserInputError(f"firmware = {self._options.firmware!r}: one of {', '.join(FIRMWARES)}")
+        self._px4 = self._options.firmware == "px4"
+        if self._px4 and on_loss is not None:
+            raise UserInputError("source_set_on_gnss_loss: EK3 source sets and Lua are ArduPilot's, not PX4's")
         self._world = world
         self._speed = speed
         self._realtime = 0.0 < speed < math.inf
@@ -260,7 +281,7 @@ class MockAutopilot:
             signing=signing,
             on_frame=self._log_frame,
         )
-        self._encoder = TelemetryEncoder(self._endpoint.mav)
+        self._encoder = TelemetryEncoder(self._endpoint.mav, firmware=self._options.firmware)
         home = (world.home_lat_deg, world.home_lon_deg, world.home_alt_m)
         self._frame = LocalFrame(*home)
         self._state = SensorState(home)
@@ -269,6 +290,7 @@ class MockAutopilot:
                               random_walk_m_s_per_sqrt_s=d.velocity_random_walk_m_s_per_sqrt_s)  # fmt: skip
         extnav = ExtNavJudge(self._options.extnav_rules, judge)
         self._drift = _DeadReckoning(d, judge, extnav)
+        self._ekf2 = Ekf2Judge(self._options.ekf2_rules, judge)  # used only as PX4, into the same error state
         self._second = _SecondSensors(self._options.second_sensors)
         self._stop = threading.Event()
         self._lock = threading.Lock()
@@ -377,10 +399,13 @@ class MockAutopilot:
             link_active=self._active,
             link=self.link.description,
             gps_input_verdicts=dict(self._drift.judge.verdicts),
+            gps_input_outage_verdicts=dict(self._drift.judge.outage_verdicts),
             outage_end_errors=list(self._drift.judge.outage_end),
             odometry_verdicts=dict(self._drift.extnav.verdicts),
             odometry_outage_verdicts=dict(self._drift.extnav.outage_verdicts),
             source_set_switches=list(self._drift.extnav.switches),
+            ekf2_verdicts={k: dict(v) for k, v in self._ekf2.verdicts.items()},
+            ekf2_outage_verdicts={k: dict(v) for k, v in self._ekf2.outage_verdicts.items()},
         )
 
     # ------------------------------------------------------------------------------------ the clock
@@ -442,6 +467,11 @@ class MockAutopilot:
         loss_changed = on_loss is not None and tick.gnss_outage != self._drift.in_outage
         if loss_changed and not tick.gnss_outage:
             self._drift.extnav.set_source_set(1, truth.t_s)
+        if self._px4 and tick.gnss_outage != self._drift.in_outage:  # EKF2's GNSS flags time out from the loss
+            if tick.gnss_outage:
+                self._ekf2.outage_started(truth.t_s)
+            else:
+                self._ekf2.outage_ended()
         self._drift.update(dt, tick.gnss_outage)
         if loss_changed and on_loss is not None and tick.gnss_outage:
             self._drift.extnav.set_source_set(on_loss, truth.t_s)
@@ -531,8 +561,10 @@ class MockAutopilot:
                 self._record_gps_input(msg, now_s)
             case "ODOMETRY":
                 self._record_odometry(msg, now_s)
-            case "VISION_POSITION_ESTIMATE":
+            case "VISION_POSITION_ESTIMATE" if not self._px4:
                 self._judge_vision_position(msg)
+            case "GLOBAL_POSITION_SENSOR" if self._px4:
+                self._judge_global_position_sensor(msg, now_s)
             case _:
                 pass
 
@@ -575,7 +607,7 @@ class MockAutopilot:
         elif cmd == mavlink2.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
             self._ack(msg, mavlink2.MAV_RESULT_ACCEPTED)
             self._send(self._encoder.autopilot_version(self._state, now_s))
-        elif cmd == mavlink2.MAV_CMD_SET_EKF_SOURCE_SET:
+        elif cmd == mavlink2.MAV_CMD_SET_EKF_SOURCE_SET and not self._px4:  # ArduPilot's own command
             # GCS_Common.cpp handle_command_set_ekf_source_set: param1 = 1..3 (uint32_t cast: truncated), else DENIED
             p1 = float(msg.param1)
             number = math.trunc(p1) if math.isfinite(p1) else 0
@@ -617,17 +649,34 @@ class MockAutopilot:
         with self._lock:
             self._gps_inputs.append(rec)
         truth = self._state.truth
+        if self._px4:
+            if truth is not None:
+                p = np.asarray(self._frame.to_ned(rec.lat_deg, rec.lon_deg, rec.alt_m), dtype=np.float64).reshape(3)
+                self._ekf2.gps_input(
+                    t_s=now_s, fix_type=rec.fix_type, satellites=rec.satellites, hdop=rec.hdop, vdop=rec.vdop,
+                    h_acc_m=rec.h_acc_m, v_acc_m=rec.v_acc_m, speed_acc_m_s=rec.speed_acc_m_s,
+                    ignore_flags=rec.ignore_flags, fix_error_ne_m=(p - truth.pos_ned_m)[:2],
+                    vel_error_ne_m_s=(rec.v_ned_m_s - truth.v_ned_m_s)[:2], gnss_outage=self._state.gnss_outage,
+                )  # fmt: skip
+            return
         extnav = self._drift.extnav
         if extnav.rules.sources.set(extnav.active_set).posxy != SourceXY.GPS:  # SelectVelPosFusion: not the source
             if truth is not None and self._state.gnss_outage:
                 self._drift.judge.verdicts["source set: POSXY not GPS"] += 1
+                self._drift.judge.outage_verdicts["source set: POSXY not GPS"] += 1
             return
-        if truth is not None and self._state.gnss_outage:
+        if truth is not None:  # judged outside outages too: GPS_AUTO_SWITCH decides whether the MAV instance counts
             p = np.asarray(self._frame.to_ned(rec.lat_deg, rec.lon_deg, rec.alt_m), dtype=np.float64).reshape(3)
+            g = self._state.gnss  # the real receiver's last fix (None: lost, in an outage)
             self._drift.judge.gps_input(
                 gps_id=rec.gps_id, fix_type=rec.fix_type, satellites=rec.satellites, ignore_flags=rec.ignore_flags,
                 fix_error_ne_m=(p - truth.pos_ned_m)[:2], vel_error_ne_m_s=(rec.v_ned_m_s - truth.v_ned_m_s)[:2],
                 h_acc_m=rec.h_acc_m, speed_acc_m_s=rec.speed_acc_m_s, airspeed_aiding=self._state.airspeed is not None,
+                v_acc_m=rec.v_acc_m, t_s=now_s,
+                real_fix_type=g.fix_type if g is not None else mavlink2.GPS_FIX_TYPE_NO_FIX,
+                real_h_acc_m=g.h_acc_m if g is not None else None, real_v_acc_m=g.v_acc_m if g is not None else None,
+                real_speed_acc_m_s=g.vel_acc_m_s if g is not None else None,
+                real_age_s=now_s - g.t_s if g is not None else 0.0,
             )  # fmt: skip
 
     def _record_odometry(self, msg: MavlinkMessage, now_s: float) -> None:
@@ -649,13 +698,32 @@ class MockAutopilot:
         with self._lock:
             self._odometry.append(rec)
         truth = self._state.truth
-        if truth is not None:
+        if truth is not None and self._px4:
+            self._ekf2.odometry(
+                t_s=now_s, frame_id=rec.frame_id, child_frame_id=rec.child_frame_id, pos_m=rec.pos_m, q=rec.q,
+                vel_m_s=rec.vel_m_s, pose_covariance=rec.pose_covariance, velocity_covariance=rec.velocity_covariance,
+                reset_counter=rec.reset_counter, quality=rec.quality, truth_pos_ned_m=truth.pos_ned_m,
+                truth_v_ned_m_s=truth.v_ned_m_s, gnss_outage=self._state.gnss_outage,
+                estimator_type=rec.estimator_type, truth_q=truth.q_nb,
+            )  # fmt: skip
+        elif truth is not None:
             self._drift.extnav.odometry(
                 time_usec=rec.time_usec, frame_id=rec.frame_id, child_frame_id=rec.child_frame_id, pos_m=rec.pos_m,
                 q=rec.q, vel_m_s=rec.vel_m_s, pose_covariance=rec.pose_covariance, reset_counter=rec.reset_counter,
                 quality=rec.quality, truth_pos_ned_m=truth.pos_ned_m, truth_v_ned_m_s=truth.v_ned_m_s,
                 gnss_outage=self._state.gnss_outage,
             )  # fmt: skip
+
+    def _judge_global_position_sensor(self, msg: MavlinkMessage, now_s: float) -> None:
+        """GLOBAL_POSITION_SENSOR (296): degE7 and m AMSL, eph/epv [m], judged by EKF2's rules."""
+        truth = self._state.truth
+        if truth is None:
+            return
+        p = np.asarray(self._frame.to_ned(msg.lat * 1e-7, msg.lon * 1e-7, float(msg.alt)), dtype=np.float64)
+        self._ekf2.global_position_sensor(
+            t_s=now_s, fix_error_ne_m=(p.reshape(3) - truth.pos_ned_m)[:2], eph_m=float(msg.eph),
+            epv_m=float(msg.epv), flags=int(msg.flags), gnss_outage=self._state.gnss_outage, sensor_id=int(msg.id),
+        )  # fmt: skip
 
     def _judge_vision_position(self, msg: MavlinkMessage) -> None:
         truth = self._state.truth

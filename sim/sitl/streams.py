@@ -42,7 +42,10 @@ UINT16_UNKNOWN = 65535
 DEBUG_FLOAT_ARRAY_LEN = 58
 SCHEDULE_EPSILON_S = 1e-6  # a message due within this of the tick is sent at it
 PLANE_VERSION = (4, 5, 7)  # reported ArduPlane version in AUTOPILOT_VERSION
+PX4_VERSION = (1, 15, 4)  # ... and PX4's, as the mock plays it (its EKF2 rules: ekf2_judge.py)
 FIRMWARE_VERSION_TYPE_OFFICIAL = 255
+FIRMWARES = ("ardupilot", "px4")  # whose rules and encodings the mock follows
+PX4_MAIN_MODE_AUTO, PX4_AUTO_MISSION = 4, 4  # PX4 src/modules/commander/px4_custom_mode.h
 
 
 class Stream(IntEnum):
@@ -333,8 +336,11 @@ class TelemetryEncoder:
     ``encode`` returns None when the message has nothing to report yet (e.g. no IMU sample).
     """
 
-    def __init__(self, mav: mavlink2.MAVLink) -> None:
+    def __init__(self, mav: mavlink2.MAVLink, *, firmware: str = "ardupilot") -> None:
+        if firmware not in FIRMWARES:
+            raise ValueError(f"firmware = {firmware!r}: one of {', '.join(FIRMWARES)}")
         self._mav = mav
+        self._px4 = firmware == "px4"
         self._builders: dict[str, Callable[[SensorState, float], MavlinkMessage | None]] = {
             "HEARTBEAT": self.heartbeat,
             "RAW_IMU": self.raw_imu,
@@ -365,13 +371,18 @@ class TelemetryEncoder:
         return self._builders[name](state, t_s)
 
     def heartbeat(self, state: SensorState, t_s: float) -> MavlinkMessage:
-        # ArduPlane in AUTO, armed and flying
+        # ArduPlane in AUTO, armed and flying; PX4 in AUTO.MISSION (px4_custom_mode.h: main mode in bits 16-23,
+        # sub mode in 24-31)
         base_mode = (
             mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
             | mavlink2.MAV_MODE_FLAG_GUIDED_ENABLED
             | mavlink2.MAV_MODE_FLAG_STABILIZE_ENABLED
             | mavlink2.MAV_MODE_FLAG_SAFETY_ARMED
         )
+        if self._px4:
+            custom_mode = (PX4_MAIN_MODE_AUTO << 16) | (PX4_AUTO_MISSION << 24)
+            return self._mav.heartbeat_encode(mavlink2.MAV_TYPE_FIXED_WING, mavlink2.MAV_AUTOPILOT_PX4, base_mode,
+                                              custom_mode, mavlink2.MAV_STATE_ACTIVE, 3)  # fmt: skip
         return self._mav.heartbeat_encode(
             mavlink2.MAV_TYPE_FIXED_WING,
             mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA,
@@ -416,7 +427,9 @@ class TelemetryEncoder:
 
     def highres_imu(self, state: SensorState, t_s: float) -> MavlinkMessage | None:
         """As ArduPilot's GCS_MAVLINK::send_highres_imu: the first IMU and compass, and barometer 1 with
-        diff_pressure = its pressure less the ground pressure (not the airspeed sensor's), temperature its."""
+        diff_pressure = its pressure less the ground pressure (not the airspeed sensor's), temperature its.
+        PX4 (src/modules/mavlink/streams/HIGHRES_IMU.hpp): diff_pressure is the airspeed sensor's
+        (differential_pressure topic, bit 10 only when it has one)."""
         imu = state.imu
         if imu is None:
             return None
@@ -432,6 +445,9 @@ class TelemetryEncoder:
             abs_hpa, diff_hpa, alt_m = to_hpa(p), to_hpa(p - ground), pressure_altitude_m(p)
             temp_c = state.baro.temperature_c
             updated |= 0x200 | 0x400 | 0x800 | 0x1000
+            if self._px4:
+                diff_hpa = to_hpa(state.airspeed.dp_pa) if state.airspeed is not None else 0.0
+                updated &= ~0x400 if state.airspeed is None else ~0
         return self._mav.highres_imu_encode(
             to_time_usec(imu.t_s),
             *(float(v) for v in imu.accel_b_m_s2),
@@ -637,7 +653,7 @@ class TelemetryEncoder:
         )
 
     def autopilot_version(self, state: SensorState, t_s: float) -> MavlinkMessage:
-        major, minor, patch = PLANE_VERSION
+        major, minor, patch = PX4_VERSION if self._px4 else PLANE_VERSION
         capabilities = (
             mavlink2.MAV_PROTOCOL_CAPABILITY_MAVLINK2
             | mavlink2.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
