@@ -532,3 +532,79 @@ def test_port_without_a_valid_reading_in_the_window_keeps_offset_zero_and_says_s
     assert any("bad readings, last P04" in t for t in texts[cal_texts[0] + 1 :])
     assert all(b - a >= text_interval_ms() for a, b in pairwise(ms for ms, _ in run.warnings()))
     assert sum("zeroed 11 ports" in t for t in run.infos()) == 1
+
+
+# ------------------------------------------------------------------- one message per reading (VPP_MAV_CHAN)
+def _arrays(run: Run) -> list[tuple[int, int, int, bytes, dict[str, object]]]:
+    """Each DEBUG_FLOAT_ARRAY sent: (update, ms, channel, payload, fields), the fields unpacked with pymavlink's own
+    wire layout of message 350 (an independent reading of the bytes the script packed)."""
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+    layout = mavlink2.MAVLink_debug_float_array_message.unpacker  # "<QH10s58f", wire order
+    out = []
+    for k, ms, chan, msgid, hexp, ok in run.of("MAV"):
+        assert int(msgid) == mavlink2.MAVLINK_MSG_ID_DEBUG_FLOAT_ARRAY and ok == "true"
+        payload = bytes.fromhex(hexp)
+        t_us, array_id, name, *data = layout.unpack(payload)
+        out.append((int(k), int(ms), int(chan), payload, {"time_usec": t_us, "array_id": array_id, "name": name,
+                                                          "data": data}))  # fmt: skip
+    return out
+
+
+def test_one_debug_float_array_per_reading_on_the_companions_channel(any_lua: str, tmp_path: Path) -> None:
+    """VPP_MAV_CHAN = 1: every reading is one DEBUG_FLOAT_ARRAY on channel 1 alone, no named values: the ports in
+    order (NaN for a faulted one), zeros beyond them (trimmed on the wire: pymavlink's own packing of the same
+    message gives the same first 68 bytes and no more), array_id 0, name PORTS, time_usec the frame's millis in µs
+    (an autopilot up 83 minutes: above 2^32 µs, the high word in use)."""
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+    updates, boot_ms = 5, 5_000_000
+    bad = {(3, 4): 3}
+    sensors = make_sensors(6, updates, 12, status=bad)
+    run = run_script(any_lua, tmp_path, params=WIRING | {"VPP_MAV_CHAN": 1}, updates=updates, frames=sensors.frames,
+                     boot_ms=boot_ms)  # fmt: skip
+    assert run.of("NVF") == []
+    arrays = _arrays(run)
+    assert [a[0] for a in arrays] == list(range(1, updates + 1)) and {a[2] for a in arrays} == {1}
+    mav = mavlink2.MAVLink(None, 1, 1)
+    for k, ms, _, payload, f in arrays:
+        assert len(payload) == 252 and ms > boot_ms
+        assert f["time_usec"] == ms * 1000 > 2**32 and f["array_id"] == 0 and f["name"] == b"PORTS\0\0\0\0\0"
+        data = f["data"]
+        assert isinstance(data, list) and data[12:] == [0.0] * 46
+        for p in range(12):
+            if (k, p) in bad:
+                assert math.isnan(data[p])
+            else:  # float32 on the wire
+                assert data[p] == pytest.approx(datasheet_pa(sensors.counts[k][p], 1), rel=1e-6, abs=1e-3), (k, p)
+        if (k, 4) not in bad:  # NaN ≠ NaN: compare the wire bytes on the frames without one
+            frame = mav.debug_float_array_encode(f["time_usec"], b"PORTS", 0, data).pack(mav)
+            wire = frame[10:-2]  # MAVLink 2: 10-byte header, 2-byte CRC, the payload's trailing zeros trimmed
+            assert len(wire) == 20 + 4 * 12 and wire == payload[: len(wire)] and not any(payload[len(wire) :])
+
+
+@pytest.mark.parametrize(("scenario", "text"), [
+    ({"no_mavlink": True}, "VPP: VPP_MAV_CHAN needs 4.5+: named floats"),
+    ({"mav_channels": 1}, "VPP: no MAVLink channel 1: named floats"),
+], ids=["firmware-before-4.5", "no-such-channel"])  # fmt: skip
+def test_without_the_binding_or_the_channel_the_named_values_go_out(
+    lua: str, tmp_path: Path, scenario: dict[str, object], text: str
+) -> None:
+    updates = 4
+    sensors = make_sensors(7, updates, 12)
+    run = run_script(lua, tmp_path, params=WIRING | {"VPP_MAV_CHAN": 1}, updates=updates, frames=sensors.frames,
+                     **scenario)  # fmt: skip
+    assert run.of("MAV") == [] and len(run.of("NVF")) == 12 * updates
+    assert [t for _, t in run.warnings()] == [text]  # said once
+
+
+def test_a_full_link_loses_that_reading_and_says_so(lua: str, tmp_path: Path) -> None:
+    """No tx space in update 2 (send_chan false): that reading is lost, not sent again as named values, and the
+    fault summary names it."""
+    updates = 4
+    sensors = make_sensors(8, updates, 12)
+    run = run_script(lua, tmp_path, params=WIRING | {"VPP_MAV_CHAN": 0}, updates=updates, frames=sensors.frames,
+                     tx_full={2: True})  # fmt: skip
+    assert run.of("NVF") == [] and len(run.of("MAV")) == updates
+    assert [ok for *_, ok in run.of("MAV")] == ["true", "false", "true", "true"]
+    assert [t for _, t in run.warnings()] == ["VPP: 1 bad readings, last link full"]

@@ -266,6 +266,16 @@ def test_ports_as_debug_float_array() -> None:
         assert not any(m.data[10:])
 
 
+def test_ports_as_the_array_alone_as_the_lua_script_sends_them_with_a_mavlink_channel() -> None:
+    pair = MemoryLinkPair()
+    ep = companion(pair)
+    heartbeat(ep)
+    run_to_end(ScriptedWorld(noiseless()), pair, 1.0, ports_as_debug_array=True,
+               options=AutopilotOptions(ports_named_too=False))  # fmt: skip
+    kinds = [m.get_type() for m in drain(ep)]
+    assert kinds.count("DEBUG_FLOAT_ARRAY") == 50 and "NAMED_VALUE_FLOAT" not in kinds
+
+
 # -------------------------------------------------------------------------------------- commands
 def test_set_message_interval_changes_a_rate_mid_flight_and_is_acked() -> None:
     pair = MemoryLinkPair()

@@ -40,6 +40,9 @@ def register(sub: Any) -> None:
     p.add_argument("--signing-key", metavar="HEX", help="MAVLink 2 signing key, 64 hex digits (32 bytes)")
     p.add_argument("--require-signing", action="store_true", help="reject unsigned messages from the companion")
     p.add_argument("--ports-debug-array", action="store_true", help="also send the ports as one DEBUG_FLOAT_ARRAY")
+    p.add_argument("--ports-array-only", action="store_true",
+                   help="with --ports-debug-array: the array alone, no NAMED_VALUE_FLOAT (the Lua script's "
+                   "VPP_MAV_CHAN)")  # fmt: skip
     p.add_argument(
         "--stream-rate", action="append", default=[], metavar="MSG=HZ", help="override a stream rate, repeatable"
     )
@@ -156,6 +159,7 @@ def run_sitl_cmd(args: argparse.Namespace) -> int:
             options=AutopilotOptions(
                 gcs_recording=args.gcs_recording,
                 firmware=args.firmware,
+                ports_named_too=not args.ports_array_only,
                 ekf2_rules=Ekf2Rules(release=args.px4_release, agp_handler=args.px4_release == "main"),
                 faults=faults,
                 # the autopilot's own drift drawn per benchmark seed, not the same draw on every flight

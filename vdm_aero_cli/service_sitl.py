@@ -49,6 +49,7 @@ class ServiceRun:
     speed: float = 4.0
     via_mavproxy: bool = False
     ports_source: str = "named_value_float"
+    ports_named_too: bool = True  # with ports_source debug_float_array: the mock sends the named values too
     streams: tuple[tuple[str, float], ...] = ()  # overrides of the autopilot's default streams (config: auto)
     stop_after_s: float | None = None  # world time to fly (default: to 20 s after the outage)
     ports_rate_hz: float | None = None  # default: the scenario's (50 Hz)
@@ -249,6 +250,8 @@ def run_service_sitl(run: ServiceRun, work: Path, *, mag_field_ned_ut: tuple[flo
                *autopilot_stream_args(config)]  # fmt: skip
         if run.ports_source == "debug_float_array":
             cmd.append("--ports-debug-array")
+            if not run.ports_named_too:
+                cmd.append("--ports-array-only")
         if run.stop_after_s is not None:
             cmd += ["--duration-s", f"{run.stop_after_s:g}"]
         if run.ports_rate_hz is not None:

@@ -40,8 +40,18 @@ Wiring (one I2C bus, VPP_BUS; ArduPilot's bus numbering, as ARSPD_BUS):
   * No other device at 0x28 on this bus (e.g. an ARSPD_TYPE=MS4525 pitot on the same ARSPD_BUS).
 
 ArduPilot setup: SCR_ENABLE = 1, reboot; copy this file to APM/scripts/ on the SD card (MAVFTP); set the
-VPP_ parameters; reboot (VPP_BUS is read once; and after replacing a copy older than VPP_SKIP_CAL: the VPP_
-table grew from 8 to 9 parameters, and AP_Param cannot grow a table without a reboot).
+VPP_ parameters; reboot (VPP_BUS is read once; and after replacing a copy older than VPP_MAV_CHAN: the VPP_
+table grew to 10 parameters, and AP_Param cannot grow a table without a reboot).
+
+One message per reading (VPP_MAV_CHAN >= 0, ArduPilot 4.5 and later): instead of one NAMED_VALUE_FLOAT per
+port to every link, one DEBUG_FLOAT_ARRAY (350: time_usec = the reading's boot time, array_id 0, name "PORTS",
+data = the ports in order, NaN for a lost one) on that one MAVLink channel, with mavlink:send_chan: 12 times
+fewer messages for the companion to parse (its main CPU cost at 100 Hz) and about 3.5 times fewer bytes (MAVLink 2
+trims the unused floats). The channel is MAVLink's numbering (0 = the first serial port with a MAVLink
+protocol, ...) and must be the companion's, SERIALn_PROTOCOL = 2 (a MAVLink 1 port drops message ids above
+255 without a word); the companion's ports.source: debug_float_array. The binding packs the message's whole
+252-byte payload (lua_bindings.cpp lua_mavlink_send_chan reads max_msg_len bytes). Firmware without the binding,
+or a channel that does not exist: the named values as before, said once.
 SCR_HEAP_SIZE: this script keeps ~31 kB of Lua heap, its compiled code included (stock Lua 5.3 under the
 test stubs, after a full GC, 12 ports; 32 ports add < 1 kB; ~1.5 kB more during the boot calibration). The
 same measurement gives ~24 kB for the script before the zero-offset calibration (mostly its code makes the
@@ -84,14 +94,21 @@ local CAL_DISCARD = 5 -- first readings not averaged: the transducer settling af
 local CAL_MIN_MS = 2000 -- the window lasts at least this long ...
 local CAL_MIN_READINGS = 16 -- ... and at least this many readings (the discarded ones included)
 local SEV_WARNING, SEV_INFO = 4, 6 -- MAV_SEVERITY
+-- DEBUG_FLOAT_ARRAY (common.xml, id 350) in wire order: time_usec uint64 (two 32-bit words: Lua's integers may be
+-- 32-bit), array_id uint16, name char[10], data float[58] (an extension field): 252 bytes
+local DFA_MSGID = 350
+local DFA_LEN = 58
+local DFA_FORMAT = "<I4I4I2c10" .. string.rep("f", DFA_LEN)
+local DFA_NAME = "PORTS\0\0\0\0\0" -- padded by hand to char[10]
+local DFA_ARRAY_ID = 0 -- the companion's ports.debug_array_id
 local NAN = 0 / 0
 
 assert(#NAME_PREFIX + 2 <= NAME_MAX, "VPP: NAME_PREFIX too long for NAMED_VALUE_FLOAT")
 
 -- Parameters --------------------------------------------------------------------------------------------
--- 9 slots for the 9 parameters (indices 1..9; the table had 8 before VPP_SKIP_CAL): a table's size can only
+-- 10 slots for the 10 parameters (indices 1..10; 8 before VPP_SKIP_CAL, 9 before VPP_MAV_CHAN): a table's size can only
 -- grow across a reboot (AP_Param), and a new parameter must take the next index, never reuse one
-assert(param:add_table(PARAM_TABLE_KEY, PARAM_PREFIX, 9), "VPP: could not add param table (key in use?)")
+assert(param:add_table(PARAM_TABLE_KEY, PARAM_PREFIX, 10), "VPP: could not add param table (key in use?)")
 
 -- Parameter() + init() works on older firmware too (Parameter(name) came later)
 local function bind_add_param(name, idx, default_value)
@@ -166,6 +183,13 @@ local VPP_LOG = bind_add_param("LOG", 8, 1)
   // @Values: 0:Calibrate at boot,1:Skip
 --]]
 local VPP_SKIP_CAL = bind_add_param("SKIP_CAL", 9, 0)
+--[[
+  // @Param: VPP_MAV_CHAN
+  // @DisplayName: MAVLink channel for one message per reading
+  // @Description: -1: each port as a NAMED_VALUE_FLOAT to every link (any firmware). 0 or more: every reading as one DEBUG_FLOAT_ARRAY (name PORTS, array_id 0) on this MAVLink channel alone (0 = the first serial port with MAVLink, ...), the companion's, which must be MAVLink 2 (ArduPilot 4.5 and later; set the companion's ports.source to debug_float_array)
+  // @Range: -1 9
+--]]
+local VPP_MAV_CHAN = bind_add_param("MAV_CHAN", 10, -1)
 
 -- State ---------------------------------------------------------------------------------------------------
 local names = {} -- port index (0-based) -> name, built once: no string garbage per update
@@ -189,6 +213,12 @@ end
 local cal_due = true -- the calibration starts at the first enabled update
 local cal = nil -- while it runs: { start_ms, readings, sum = port -> Pa, n = port -> valid readings }
 local cal_texts = {} -- calibration warnings not sent yet (warn() is rate-limited), oldest first
+local dfa = {} -- DEBUG_FLOAT_ARRAY data, reused; beyond VPP_COUNT 0.0 (trimmed on the wire)
+for i = 1, DFA_LEN do
+  dfa[i] = 0.0
+end
+local dfa_count = DFA_LEN -- ports last written into dfa
+local array_said = false -- VPP_MAV_CHAN's fallback to named values, said once
 
 -- DataFlash: AP_Logger takes at most 14 format characters and 56 label characters from a script (it adds
 -- TimeUS); 12 ports ("P00,...,P11", 47 characters) per message. Fixed layouts: a message's format must not
@@ -207,6 +237,14 @@ end
 
 local function now_ms()
   return millis():toint()
+end
+
+-- ms since boot -> microseconds as two 32-bit words (low, high), in 16-bit limbs: exact with 32- or 64-bit
+-- Lua integers (ms < 2^31; an unsigned 32-bit pattern that a 32-bit Lua holds as negative packs the same)
+local function usec_words(ms)
+  local p0 = (ms & 0xFFFF) * 1000
+  local t = ((ms >> 16) & 0xFFFF) * 1000 + (p0 >> 16)
+  return (p0 & 0xFFFF) | ((t & 0xFFFF) << 16), t >> 16
 end
 
 local function warn(text)
@@ -352,6 +390,44 @@ local function cal_step()
   end
 end
 
+-- VPP_MAV_CHAN >= 0: the reading as one DEBUG_FLOAT_ARRAY on that channel. False: send the named values instead
+-- (not asked for; no binding on this firmware; no such channel: the last two said once).
+local function send_array()
+  local chan = math.floor(VPP_MAV_CHAN:get())
+  if chan < 0 then
+    return false
+  end
+  if mavlink == nil then
+    if not array_said then
+      array_said = true
+      cal_texts[#cal_texts + 1] = "VPP: VPP_MAV_CHAN needs 4.5+: named floats"
+    end
+    return false
+  end
+  for i = 0, cfg.count - 1 do
+    dfa[i + 1] = values[i]
+  end
+  for i = cfg.count + 1, dfa_count do
+    dfa[i] = 0.0
+  end
+  dfa_count = cfg.count
+  local lo, hi = usec_words(now_ms())
+  local ok = mavlink:send_chan(chan, DFA_MSGID,
+    string.pack(DFA_FORMAT, lo, hi, DFA_ARRAY_ID, DFA_NAME, table.unpack(dfa, 1, DFA_LEN)))
+  if ok == nil then -- no such channel (recent firmware says so; older ones must not be given one)
+    if not array_said then
+      array_said = true
+      cal_texts[#cal_texts + 1] = string.format("VPP: no MAVLink channel %d: named floats", chan)
+    end
+    return false
+  end
+  if not ok then -- no room in the channel's buffer: the reading is lost, counted as a bad one
+    bad_count = bad_count + 1
+    bad_last = "link full"
+  end
+  return true
+end
+
 local function counts_to_pa(counts)
   local psi = (counts - COUNTS_AT_PMIN) * (2 * cfg.range_psi) / COUNTS_SPAN - cfg.range_psi
   return psi * PSI_TO_PA
@@ -427,8 +503,10 @@ local function update()
     end
   end
   -- ... then every send back to back: one millis() for the whole frame
-  for i = 0, cfg.count - 1 do
-    gcs:send_named_float(names[i], values[i])
+  if not send_array() then
+    for i = 0, cfg.count - 1 do
+      gcs:send_named_float(names[i], values[i])
+    end
   end
   if VPP_LOG:get() >= 0.5 then
     for i = cfg.count, MAX_PORTS - 1 do

@@ -118,6 +118,9 @@ class AutopilotOptions:
     # end (None: no script; the companion's MAV_CMD_SET_EKF_SOURCE_SET only)
     source_set_on_gnss_loss: int | None = None
     ekf2_rules: Ekf2Rules = field(default_factory=Ekf2Rules)  # as PX4: how EKF2 takes them (ekf2_judge.py)
+    # with ``ports_as_debug_array``: the ports as NAMED_VALUE_FLOAT too (False: the array alone, as the Lua script
+    # sends them with VPP_MAV_CHAN set)
+    ports_named_too: bool = True
 
 
 class RunSummary(TypedDict):
@@ -514,7 +517,7 @@ class MockAutopilot:
             if len(ports.names) > DEBUG_FLOAT_ARRAY_LEN:
                 raise ValueError(f"{len(ports.names)} ports: DEBUG_FLOAT_ARRAY holds {DEBUG_FLOAT_ARRAY_LEN}")
             values = ports.dp_pa if faults is None else faults.port_values(ports)
-            for name, dp in zip(ports.names, values, strict=True):
+            for name, dp in zip(ports.names, values, strict=True) if self._options.ports_named_too else ():
                 self._send(self._encoder.named_value_float(ports.t_s, name, float(dp)))
             self._send(
                 self._encoder.debug_float_array(ports.t_s, PORTS_ARRAY_NAME, self._options.debug_array_id, values)

@@ -10,6 +10,11 @@ Only what a script may really call, with the real signatures and the real checks
     (SCRIPTING_MAX_NUM_I2C_DEVICE)
   device:set_address(a), :set_retries(n), :transfer(send_string, read_len 0..255) -> string | nil
   gcs:send_named_float(name, value), gcs:send_text(severity 0..7, text)
+  mavlink:send_chan(chan, msgid, payload) -> true | false (no tx space) | nil (no such channel): as
+    lua_mavlink_send_chan; it knows DEBUG_FLOAT_ARRAY (350) only, and errors as the binding would misbehave
+    on a payload shorter than the message's max_msg_len (the binding reads that many bytes). Absent with
+    scenario.no_mavlink (firmware before 4.5); scenario.mav_channels (default 3) channels exist;
+    scenario.tx_full[k]: no tx space in update k
 
 Every call is recorded through emit(kind, ...) as one tab-separated line. The clock is simulated: an I2C
 transfer takes its bus time at 400 kHz, so a script that sends between reads gets different millis().
@@ -83,14 +88,15 @@ function M.new(scenario, emit)
   u32.__tostring = function(self)
     return tostring(self.v)
   end
+  local boot_us = (scenario.boot_ms or 0) * 1000 -- the autopilot's uptime when the run starts
   local function now_ms()
-    return math.floor(S.clock_us / 1000)
+    return math.floor((S.clock_us + boot_us) / 1000)
   end
   env.millis = function()
     return setmetatable({ v = now_ms() }, u32)
   end
   env.micros = function()
-    return setmetatable({ v = math.floor(S.clock_us) }, u32)
+    return setmetatable({ v = math.floor(S.clock_us + boot_us) }, u32)
   end
 
   -- param / Parameter -----------------------------------------------------------------------------------
@@ -172,6 +178,32 @@ function M.new(scenario, emit)
     emit("TEXT", S.update, now_ms(), severity, (tostring(text):gsub("[\t\n]", " ")))
   end
   env.gcs = gcs
+
+  -- mavlink (4.5+) ----------------------------------------------------------------------------------------
+  if not scenario.no_mavlink then
+    local max_msg_len = { [350] = 252 } -- DEBUG_FLOAT_ARRAY
+    local mavlink = {}
+    function mavlink:send_chan(chan, msgid, payload)
+      chan = check_int(chan, 0, 255, "send_chan chan")
+      msgid = check_int(msgid, 0, 16777215, "send_chan msgid")
+      if max_msg_len[msgid] == nil then
+        error(string.format("Unknown MAVLink message ID (%d)", msgid), 2)
+      end
+      if type(payload) ~= "string" or #payload < max_msg_len[msgid] then
+        error(string.format("send_chan: payload of %s bytes, message %d reads %d", #tostring(payload), msgid,
+          max_msg_len[msgid]), 2)
+      end
+      if chan >= (scenario.mav_channels or 3) then
+        return nil
+      end
+      local full = scenario.tx_full and scenario.tx_full[S.update]
+      emit("MAV", S.update, now_ms(), chan, msgid, (payload:gsub(".", function(c)
+        return string.format("%02x", c:byte())
+      end)), tostring(not full))
+      return not full
+    end
+    env.mavlink = mavlink
+  end
 
   -- logger (AP_Scripting's logger:write checks, lua_bindings.cpp: name ≤ 4, labels < 57, format < 15
   -- characters; as many values as format characters; scripts may use i, L, e, f, n, M, B, I, E, N)
