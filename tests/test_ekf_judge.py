@@ -227,3 +227,97 @@ def test_blending_resumes_only_as_the_health_counter_decays_after_an_outage() ->
     _in_outage(settled)
     settled.outage_ended(np.zeros(3))
     assert _fix(settled, (0.0, 0.0), speed_acc_m_s=0.5, **REAL) == BLENDED
+
+
+# ---------------------------------------------------------------------------------------- calcGpsGoodForFlight
+def test_speed_accuracy_check_is_tracked_with_its_hysteresis_but_never_blocks_fusion() -> None:
+    """calcGpsGoodForFlight's gpsSpdAccPass: low-pass s1 += 0.2 (raw − s1) per read, peak hold
+    s2 = max(s1, s2 (1 − dt/10 s)), false above 1.5 m/s, true again below 1.0. At 5 Hz with 2 m/s:
+    s1 = 2 (1 − 0.8^k), > 1.5 first at k = 7 (1.58; k = 6: 1.48); after 10 reads s2 = 1.785. Then 0.5 m/s: s1 falls
+    fast, s2 = 1.785 · 0.98^j stays in the hysteresis band until j = 28 (1.014) and passes at j = 29 (0.994). No
+    fusion decision reads it: all "used"."""
+    j = _judge()
+    _in_outage(j)
+    t = 0.0
+    seen = []
+    for _ in range(10):
+        t += 0.2
+        assert _exact(j, speed_acc_m_s=2.0, t_s=t) == "used"
+        seen.append(j.spd_acc_pass)
+    assert seen == [True] * 6 + [False] * 4
+    np.testing.assert_allclose(j.sacc_peak_m_s, 2.0 * (1.0 - 0.8**10), rtol=1e-12)
+    seen = []
+    for _ in range(30):
+        t += 0.2
+        assert _exact(j, speed_acc_m_s=0.5, t_s=t) == "used"
+        seen.append(j.spd_acc_pass)
+    assert seen == [False] * 28 + [True] * 2
+    assert j.spd_acc_fail_reads == 4 + 28 and j.verdicts == {"used": 40}
+
+
+def test_speed_accuracy_check_settled_reads_only_what_ekf3_reads() -> None:
+    """Without t_s the filters are taken as settled at each read: 1.2 m/s keeps whichever state it finds (the band
+    between 1.0 and 1.5). Only reads count: not a 2-D fix, not the MAV instance behind a primary real receiver; an
+    ignored speed accuracy reads as 0; a new outage starts passing."""
+    j = _judge()
+    _in_outage(j)
+    states = []
+    for acc in (1.2, 2.0, 1.2, 0.9):
+        _exact(j, speed_acc_m_s=acc)
+        states.append(j.spd_acc_pass)
+    assert states == [True, False, False, True]
+    _exact(j, speed_acc_m_s=3.0, fix_type=2)  # readGpsData reads 3-D only
+    assert j.spd_acc_pass and j.sacc_peak_m_s == 0.9
+    _exact(j, speed_acc_m_s=3.0, ignore_flags=GPS_INPUT_IGNORE_FLAG_SPEED_ACCURACY)
+    assert j.spd_acc_pass and j.sacc_peak_m_s == 0.0
+    _exact(j, speed_acc_m_s=math.inf)  # held at 10
+    assert not j.spd_acc_pass and j.sacc_peak_m_s == 10.0
+    j.outage_ended(np.zeros(3))
+    assert _exact(j, speed_acc_m_s=3.0, real_fix_type=3) == "GNSS healthy (the real receiver is primary)"
+    assert j.sacc_peak_m_s == 10.0 and j.spd_acc_fail_reads == 3  # 2.0, 1.2 and inf
+    _in_outage(j)
+    assert j.spd_acc_pass and j.sacc_peak_m_s == 0.0
+
+
+# ---------------------------------------------------------------------------------------- FuseVelPosNED's tests
+def _fresh_outage(seconds: float) -> GpsInputJudge:
+    """An outage ``seconds`` old, no random walk: P_pos = σv²·t² per axis, P_vel = σv²."""
+    j = GpsInputJudge(Ekf3GpsRules(), velocity_sigma_m_s=SIG_V, random_walk_m_s_per_sqrt_s=0.0)
+    j.outage_started(np.zeros(3))
+    for _ in range(round(seconds / 0.1)):
+        j.propagate(0.1, np.zeros(3))
+    return j
+
+
+def test_the_position_gate_is_one_ratio_over_both_axes_before_the_noise_scaler() -> None:
+    """10 s in, P_pos = 9 m² per axis; a 3 m fix: σ² = 9 + 9 per axis. 5.5σ on north and nothing on east fails a
+    per-axis 5σ test but passes FuseVelPosNED's ratio over both axes (30.25 / 50); 7.5σ on north fails that too
+    (56.25 / 50). With the scaler of 2 in the gate (R = 36) the second would have passed."""
+    sig = math.sqrt(9.0 + 9.0)
+    assert _fix(_fresh_outage(10.0), (5.5 * sig, 0.0), h_acc_m=3.0) == "used"
+    j = _fresh_outage(10.0)
+    assert _fix(j, (7.5 * sig, 0.0), h_acc_m=3.0) == "used (velocity only)"
+    assert j.p_err_m == pytest.approx([0.0, 0.0])
+
+
+def test_the_velocity_gate_takes_ek3_velne_m_nse_not_the_reported_speed_accuracy() -> None:
+    """A fix 100 m off (its position gated) claiming 5 m/s speed accuracy with 2.5 m/s velocity errors on both axes:
+    within 5σ of its own accuracy, but FuseVelPosNED checks the velocity against EK3_VELNE_M_NSE (0.3 m/s) and P_vel
+    (0.09 m²/s²): 12.5 / (25 · 2 · 0.18) > 1, refused too. At 1.2 m/s on one axis (1.44 / 9 < 1) its velocity is
+    used."""
+    far = (100.0, 0.0)
+    bad_v = np.array([2.5, 2.5])
+    assert _fix(_fresh_outage(10.0), far, speed_acc_m_s=5.0, vel_error_ne_m_s=bad_v) == "gated (innovation > 5σ)"
+    ok_v = np.array([1.2, 0.0])
+    assert _fix(_fresh_outage(10.0), far, speed_acc_m_s=5.0, vel_error_ne_m_s=ok_v) == "used (velocity only)"
+
+
+def test_a_fix_after_a_long_silence_resets_onto_itself_beyond_the_glitch_radius() -> None:
+    """60 s without fixes: P_NN + P_EE = 2·(0.3·60)² = 648 m² > EK3_GLITCH_RAD² (625): a passing fix resets the position
+    onto itself (ResetPosition), P = 12.5² per axis, and is not fused."""
+    j = _fresh_outage(60.0)
+    e = (4.0, -3.0)
+    assert _fix(j, e, h_acc_m=3.0) == "reset (position variance beyond EK3_GLITCH_RAD)"
+    np.testing.assert_allclose(j.p_err_m, e)
+    np.testing.assert_allclose(j.P[:, 0, 0], 12.5**2)
+    assert _fix(_fresh_outage(58.0), e, h_acc_m=3.0) == "used"  # 2·17.4² = 606 m²: fused

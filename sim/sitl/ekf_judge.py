@@ -37,12 +37,30 @@ without it. Rules, from ArduPilot's sources:
 * ``AP_NavEKF3_Measurements.cpp`` ``readGpsData``: a status below 3-D is not read. The accuracies are clamped:
   position to [``EK3_POSNE_M_NSE``, 100 m], speed to [``EK3_VELNE_M_NSE``, 50 m/s]. ``gpsNoiseScaler`` is
   1 with ≥ 6 satellites in absolute aiding, 1.4 with 5, else 2 (GPS_INPUT carries no satellites: 2).
-* ``AP_NavEKF3_PosVelFusion.cpp`` ``FuseVelPosNED``: R = (gpsNoiseScaler · accuracy)²; a position or velocity
-  innovation beyond ``EK3_POS_I_GATE`` / ``EK3_VEL_I_GATE`` (default 500: 5σ) is rejected.
+* ``AP_NavEKF3_PosVelFusion.cpp`` ``FuseVelPosNED``: fused with R = (gpsNoiseScaler · accuracy)², velocity before
+  position. Gated before the scaler, one test ratio over N and E each: position Σi² < gate² · Σ(P + accuracy²),
+  velocity Σi² < gate² · Σ(P + EK3_VELNE_M_NSE²) (``R_OBS_DATA_CHECKS``: not the reported speed accuracy; its
+  manoeuvre term ``gpsNEVelVarAccScale · accNavMag`` and the vertical velocity in the ratio are not modelled),
+  gate = ``EK3_POS_I_GATE`` / ``EK3_VEL_I_GATE`` (default 500: 5σ). A passing position while P_NN + P_EE >
+  ``EK3_GLITCH_RAD``² (25 m) resets onto the fix (``ResetPosition``, P = (EK3_GLITCH_RAD / 2)²) instead.
 * ``AP_NavEKF3_Control.cpp`` ``setAidingMode``: a plane fusing an airspeed sensor stays in absolute aiding
   through a GNSS loss and takes GPS back without further checks; without one it drops to ``AID_NONE`` and
   returns only when ``readyToUseGPS()`` holds, which needs ``gpsGoodToAlign``, 10 s of passed GPS checks
-  (``calcGpsGoodToAlign``: among them ≥ 6 satellites), which a GPS_INPUT with no satellites never passes.
+  (``calcGpsGoodToAlign``: among them ≥ 6 satellites), which a GPS_INPUT with no satellites never passes (but
+  ``calcGpsGoodToAlign`` sets ``gpsGoodToAlign`` unchecked for a plane in flight without a compass: not modelled,
+  the judge assumes a compass).
+* ``AP_NavEKF3_VehicleStatus.cpp`` ``calcGpsGoodForFlight``, run by ``readGpsData`` at every 3-D fix it reads (on
+  the ground or in flight), sets ``gpsSpdAccPass`` (the reported speed accuracy through a low-pass, 0.2 per read,
+  held in [0, 10], then a peak hold decaying with τ = 10 s: fails above 1.5 m/s, passes again below 1.0),
+  ``ekfInnovationsPass`` (fails after 1 s without ``velTestRatio`` and ``posTestRatio`` both < 1, passes after 10 s
+  without either > 0.7) and ``gpsAccuracyGood`` (both). No fusion decision reads them: ``readyToUseGPS`` needs
+  ``gpsGoodToAlign``, ``SelectVelPosFusion``/``FuseVelPosNED`` gate on the test ratios alone. They feed
+  ``updateFilterStatus`` (``gps_glitching`` = not ``gpsAccuracyGood`` in absolute aiding: EKF_STATUS_REPORT,
+  AP_Notify, arming checks), ``detectFlight`` (not ``gpsSpdAccPass`` stops the EKF-GSF yaw estimator, the source of
+  emergency yaw resets; yaw is not modelled) and the vertical only, not modelled: ``selectHeightForFusion`` takes
+  GPS as height source (``EK3_SRC1_POSZ`` 3, ArduPlane's default is 1, baro) only while ``gpsAccuracyGood``, and
+  ``correctEkfOriginHeight`` (``EK3_OGN_HGT_MASK``) too. So the judge keeps the speed-accuracy half for information
+  only (``spd_acc_pass``, ``spd_acc_fail_reads``), at each GPS_INPUT read as primary; it never changes a verdict.
 
 The estimate's error is a linear model per horizontal axis (position and velocity error; the velocity a
 random walk, :class:`DeadReckoningDrift`), so its Kalman filter here is exact for the drift: what remains
@@ -83,6 +101,9 @@ BLEND_MASK_HPOS, BLEND_MASK_VPOS, BLEND_MASK_SPD = 1, 2, 4  # GPS_BLEND_MASK bit
 BLEND_MAX_GAP_S = 0.4  # _calc_weights: last messages < 2 · GPS_RATE_MS apart (default 200 ms, also its cap)
 GPS_UPDATE_HZ = 50.0  # ArduPlane runs AP_GPS::update (update_primary → calc_weights) at 50 Hz
 BLEND_FAIL_STEP, BLEND_HEALTH_MAX, BLEND_HEALTH_OFF = 10, 100, 50  # calc_weights' health counter
+# calcGpsGoodForFlight's speed-accuracy filter: low-pass coefficient per read, peak hold decay, state cap, hysteresis
+SACC_LPF_ALPHA, SACC_PEAK_TAU_S, SACC_FILT_MAX_M_S = 0.2, 10.0, 10.0
+SACC_FAIL_M_S, SACC_PASS_M_S = 1.5, 1.0  # gpsSpdAccPass: false above 1.5 m/s, true again below 1.0 m/s
 
 
 @dataclass(frozen=True)
@@ -94,6 +115,7 @@ class Ekf3GpsRules:
     posne_m_nse: float = 0.5  # EK3_POSNE_M_NSE [m]
     velne_m_nse: float = 0.3  # EK3_VELNE_M_NSE [m/s]
     gate_sigma: float = 5.0  # EK3_POS_I_GATE = EK3_VEL_I_GATE = 500 (hundredths of a σ)
+    glitch_rad_m: float = 25.0  # EK3_GLITCH_RAD: a passing fix with P_NN + P_EE beyond its square resets onto it
     # GPS_AUTO_SWITCH: 0 use primary (GPS_PRIMARY always), 1 use best (default), 2 blend, 3 old "use second"
     # (AP_GPS::init converts it to 0 with GPS_PRIMARY 1), 4 use GPS_PRIMARY while it has a 3-D fix, else best
     auto_switch: int = AUTO_SWITCH_BEST
@@ -179,6 +201,12 @@ class GpsInputJudge:
         self._in_outage = False
         self.blend_health = 0  # AP_GPS_Blended::_blend_health_counter (GPS_AUTO_SWITCH 2)
         self._blend_t_s: float | None = None  # the last GPS_INPUT the counter was advanced to
+        # calcGpsGoodForFlight's speed-accuracy half (informational: no fusion decision reads it)
+        self.sacc_lpf_m_s = 0.0  # sAccFilterState1
+        self.sacc_peak_m_s = 0.0  # sAccFilterState2
+        self.spd_acc_pass = True  # gpsSpdAccPass
+        self.spd_acc_fail_reads = 0  # GPS_INPUTs read while gpsSpdAccPass is false
+        self._sacc_t_s: float | None = None
 
     # ------------------------------------------------------------------------------------ the drift
     def outage_started(self, v0_m_s: F64Array) -> None:
@@ -191,6 +219,10 @@ class GpsInputJudge:
         # the real receiver's fix is lost: calc_weights fails at every update (+10 each) for the second before the
         # service's first GPS_INPUT, so the blend's health counter is saturated
         self.blend_health = BLEND_HEALTH_MAX
+        # the real receiver's reads before it (not given) taken as passing with a negligible speed accuracy
+        self.sacc_lpf_m_s = self.sacc_peak_m_s = 0.0
+        self.spd_acc_pass = True
+        self._sacc_t_s = None
 
     def propagate(self, dt_s: float, dv_m_s: F64Array) -> None:
         """One step of the drift: ``dv_m_s`` the random walk's increment (the free estimate's too)."""
@@ -297,6 +329,8 @@ class GpsInputJudge:
             return "no fix (readGpsData reads 3-D only)" if primary else "no fix (not primary)"
         if fix_type < GPS_FIX_3D:
             return "2-D fix (readGpsData reads 3-D only)"
+        if primary:  # readGpsData reads it and runs calcGpsGoodForFlight (informational)
+            self._spd_acc_check(ignore, speed_acc_m_s, t_s)
         if not absolute:
             return "AID_NONE: gpsGoodToAlign fails (satellites < 6)"
         if not primary:
@@ -305,24 +339,56 @@ class GpsInputJudge:
             return "primary outside an outage (not fused: the estimate follows GNSS)"
         scale = _noise_scaler(satellites, absolute)
         acc = h_acc_m if not ignore & GPS_INPUT_IGNORE_HORIZ_ACC and math.isfinite(h_acc_m) and h_acc_m > 0 else 0.0
-        sig_p = scale * min(max(acc, r.posne_m_nse), POS_ACC_MAX_M)
+        acc_p = min(max(acc, r.posne_m_nse), POS_ACC_MAX_M)  # R_OBS[3] = R_OBS_DATA_CHECKS[3], before the scaler
         use_vel = not ignore & GPS_INPUT_IGNORE_VEL_HORIZ
         sp = speed_acc_m_s if not ignore & GPS_INPUT_IGNORE_SPEED_ACC and speed_acc_m_s > 0 else 0.0
-        sig_v = scale * min(max(sp, r.velne_m_nse), SPEED_ACC_MAX_M_S)
-        # FuseVelPosNED gates position and velocity each as a whole (both axes)
-        pos_ok = self._gate(e_p - self.p_err_m, np.array([self.P[0, 0, 0], self.P[1, 0, 0]]), sig_p**2)
-        vel_ok = use_vel and self._gate(e_v - self.v_err_m_s, np.array([self.P[0, 1, 1], self.P[1, 1, 1]]), sig_v**2)
+        acc_v = min(max(sp, r.velne_m_nse), SPEED_ACC_MAX_M_S)  # R_OBS[0]
+        # FuseVelPosNED: one test ratio over N and E for the position and one for the velocity, against the
+        # variances before gpsNoiseScaler; the velocity's R_OBS_DATA_CHECKS is EK3_VELNE_M_NSE's, not the accuracy
+        # reported ("we don't want the acceptance radius to increase with reported GPS accuracy")
+        vel_check = min(max(r.velne_m_nse, 0.05), 5.0) ** 2
+        pos_ok = self._gate(e_p - self.p_err_m, self.P[:, 0, 0], acc_p**2)
+        vel_ok = use_vel and self._gate(e_v - self.v_err_m_s, self.P[:, 1, 1], vel_check)
         if not pos_ok and not vel_ok:
             return "gated (innovation > 5σ)"
-        for axis in range(2):
+        reset = pos_ok and float(self.P[0, 0, 0] + self.P[1, 0, 0]) > r.glitch_rad_m**2
+        if reset:  # ResetPosition onto the fix, P = (EK3_GLITCH_RAD / 2)² per axis, the fix not fused
+            self.p_err_m = np.asarray(e_p, float).copy()
+            self.P[:, 0, :] = 0.0
+            self.P[:, :, 0] = 0.0
+            self.P[:, 0, 0] = (0.5 * r.glitch_rad_m) ** 2
+        for axis in range(2):  # the fusion's R is scaled (R_OBS *= gpsNoiseScaler²), velocity first
             if vel_ok:
-                self.fuse(axis, 1, e_v[axis] - self.v_err_m_s[axis], sig_v**2)
-            if pos_ok:
-                self.fuse(axis, 0, e_p[axis] - self.p_err_m[axis], sig_p**2)
+                self.fuse(axis, 1, e_v[axis] - self.v_err_m_s[axis], (scale * acc_v) ** 2)
+            if pos_ok and not reset:
+                self.fuse(axis, 0, e_p[axis] - self.p_err_m[axis], (scale * acc_p) ** 2)
+        if reset:
+            return "reset (position variance beyond EK3_GLITCH_RAD)"
         return "used" if pos_ok else "used (velocity only)"
 
+    def _spd_acc_check(self, ignore: int, speed_acc_m_s: float, t_s: float | None) -> None:
+        """``calcGpsGoodForFlight``'s speed-accuracy filter and ``gpsSpdAccPass``, at one read (``t_s`` its time; None:
+        the filters taken as settled at this accuracy). Informational: it changes no verdict (module docstring)."""
+        raw = speed_acc_m_s if not ignore & GPS_INPUT_IGNORE_SPEED_ACC and speed_acc_m_s > 0 else 0.0
+        if t_s is None:
+            self.sacc_lpf_m_s = self.sacc_peak_m_s = min(raw, SACC_FILT_MAX_M_S)
+        else:
+            dt = 0.0 if self._sacc_t_s is None else t_s - self._sacc_t_s
+            self._sacc_t_s = t_s
+            decay = 1.0 - min(max(dt / SACC_PEAK_TAU_S, 0.0), 1.0)
+            lpf = SACC_LPF_ALPHA * raw + (1.0 - SACC_LPF_ALPHA) * self.sacc_lpf_m_s
+            self.sacc_lpf_m_s = min(max(lpf, 0.0), SACC_FILT_MAX_M_S)
+            self.sacc_peak_m_s = max(self.sacc_lpf_m_s, decay * self.sacc_peak_m_s)
+        if self.sacc_peak_m_s > SACC_FAIL_M_S:
+            self.spd_acc_pass = False
+        elif self.sacc_peak_m_s < SACC_PASS_M_S:
+            self.spd_acc_pass = True
+        if not self.spd_acc_pass:
+            self.spd_acc_fail_reads += 1
+
     def _gate(self, innov: F64Array, var: F64Array, r: float) -> bool:
-        return bool(np.all(innov**2 <= self.rules.gate_sigma**2 * (var + r)))
+        """FuseVelPosNED's test ratio over both horizontal axes: Σ innovation² < gate² · Σ (P + R)."""
+        return bool(np.sum(innov**2) < self.rules.gate_sigma**2 * float(np.sum(var + r)))
 
     def fuse(self, axis: int, i: int, innov: float, r: float) -> None:
         """One scalar Kalman update of a direct observation of the position (``i`` = 0) or velocity (1) error on one
