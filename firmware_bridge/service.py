@@ -32,6 +32,7 @@ from firmware_bridge.config import ServiceConfig, SourceSwitchConfig
 from firmware_bridge.decode import AUTOPILOT_LOST_S, IMU_SOURCES, MESSAGES, MavlinkDecoder
 from firmware_bridge.endpoint import MavEndpoint, MavlinkMessage, load_signing_key
 from firmware_bridge.inputs import PortFrameIn
+from firmware_bridge.periodic import ClockSchedule
 from firmware_bridge.persist import FilterStateStore, NavLog
 from firmware_bridge.sd_notify import SdNotify
 from firmware_bridge.transport import open_transport
@@ -286,7 +287,7 @@ class CompanionService:
         self._boot_now_s = -math.inf  # the autopilot's time of the latest IMU sample
         self._stream_seen: dict[str, int] = dict.fromkeys(cfg.streams, 0)
         self._next: dict[str, float] = {}
-        self._next_ap: dict[str, float] = {}
+        self._ap_schedule = ClockSchedule()
         self._error_logged: dict[str, float] = {}
         self._force_streams = False
         self._streams_asked: set[str] = set()  # asked for at the last check
@@ -399,16 +400,7 @@ class CompanionService:
 
     def _due_ap(self, key: str, period_s: float) -> bool:
         """Periodic outputs on the autopilot's clock: their rates hold in faster-than-real-time SITL too."""
-        t = self._boot_now_s
-        if not math.isfinite(t):
-            return False
-        nxt = self._next_ap.get(key, -math.inf)
-        if nxt - t > 2.0 * period_s:  # the autopilot's clock went back (a reboot)
-            nxt = -math.inf
-        if t < nxt:
-            return False
-        self._next_ap[key] = t + period_s - 1e-6
-        return True
+        return self._ap_schedule.due(key, self._boot_now_s, period_s)
 
     # --------------------------------------------------------------- the decoder's sink (DecodedSink)
     def on_autopilot(self, src: tuple[int, int], new: bool, t_in: float) -> None:

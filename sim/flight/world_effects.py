@@ -320,12 +320,17 @@ LEVEL_TRIM_RESIDUAL_RAD: Final = 0.1 * DEG  # the level calibration's own accura
 
 
 def _level_trim(accel_m: F64Array, rng: np.random.Generator) -> F64Array:
-    """The rotation the level calibration applies: it undoes the roll (x) and pitch (y) components of the
-    accelerometer's misalignment rotation (the antisymmetric part of M − I), leaving a residual of
-    :data:`LEVEL_TRIM_RESIDUAL_RAD` per axis; yaw is not observable on the bench and stays."""
-    off = accel_m - np.diag(np.diag(accel_m))
-    anti = 0.5 * (off - off.T)  # ≈ [r]× of the misalignment rotation vector r
-    r = np.array([anti[2, 1], anti[0, 2], 0.0]) - rng.uniform(-1.0, 1.0, 3) * np.array(
+    """The rotation the level calibration applies. ArduPilot's ``AP_InertialSensor::_calculate_trim`` takes the
+    accelerometer's sample with the airframe level on the bench, a = M·(0, 0, −g) (offsets and scales already
+    calibrated), and trims pitch = atan2(a_x, |(a_y, a_z)|) and roll = atan2(−a_y, −a_z): the whole gravity
+    column of M, its cross-axis terms included, not only the misalignment rotation, so after it the
+    accelerometer reads level at rest. A residual of :data:`LEVEL_TRIM_RESIDUAL_RAD` per axis stays; yaw is not
+    observable on the bench and stays untrimmed."""
+    a = accel_m @ np.array([0.0, 0.0, -1.0])
+    trim_roll = math.atan2(-a[1], -a[2])
+    trim_pitch = math.atan2(a[0], math.hypot(a[1], a[2]))
+    # the rotation (I − [r×]) that turns the measured gravity onto the z axis: r = (−roll, −pitch, 0) trims
+    r = np.array([-trim_roll, -trim_pitch, 0.0]) - rng.uniform(-1.0, 1.0, 3) * np.array(
         [LEVEL_TRIM_RESIDUAL_RAD, LEVEL_TRIM_RESIDUAL_RAD, 0.0]
     )
     return np.asarray(np.eye(3) - np.array([[0.0, -r[2], r[1]], [r[2], 0.0, -r[0]], [-r[1], r[0], 0.0]]))
