@@ -335,6 +335,39 @@ def test_fdi_summary_counts_detections_and_false_alarms() -> None:
     assert got["fdi_false_alarms"] == 1 and got["fdi_healthy_h"] == pytest.approx(510.0 / 3600.0)
     healthy = nav_bench.fdi_summary(runs[:1], faulty=False)
     assert healthy["fdi_false_alarms"] == 1 and healthy["fdi_healthy_h"] == pytest.approx(520.0 / 3600.0)
+    # from each fault's first symptom: the third showed none, so it is not counted; the second was flagged 5.1 s
+    # after its symptom (45.1 s after its start)
+    seen = nav_bench.fdi_summary(runs, faulty=True, symptoms_s=[2.0, 40.0, None])
+    assert seen["fdi_flagged_10s_after_symptom"] == 1.0
+    assert seen["fdi_after_symptom_median_s"] == pytest.approx((2.4 + 5.1) / 2)
+    assert seen["fdi_symptom_by_10s"] == pytest.approx(1 / 3)
+    assert seen["fdi_flagged_10s"] == pytest.approx(1 / 3)  # the bar's own figure is unchanged
+
+
+def test_wind_alarms_where_the_wind_does_not_change_are_counted_against_the_outage_hours() -> None:
+    ms = [
+        {"fdi_events": [[-30.0, "wind", "changed"], [12.0, "wind", "changed"], [70.0, "wind", "changed"]],
+         "final_error_m": 300.0},
+        {"fdi_events": [[5.0, "pitot", "excluded"]], "final_error_m": 40.0},
+        {"fdi_events": None, "final_error_m": 60.0},
+    ]  # fmt: skip
+    got = nav_bench.wind_alarm_summary(ms, 60.0)  # only the one at 12 s is in the outage
+    assert got["wind_alarms"] == 1 and got["wind_alarm_flights"] == 1
+    assert got["wind_alarm_outage_h"] == pytest.approx(3 * 60.0 / 3600.0)
+    assert got["median_with_wind_alarm_m"] == 300.0 and got["median_without_wind_alarm_m"] == 50.0
+    summary = {"harsh/survey/60": {"vdm": {"median_m": 60.0, **got}}}
+    line = next(b for b in nav_bench.product_bars(summary) if "wind-change alarms" in b[0])
+    assert line[1].startswith("1 in 0.05 h") and "survey/60 300 against 50 m (1)" in line[1] and line[2] is False
+
+
+def test_a_faults_first_symptom_is_its_first_metre_per_second_off_the_healthy_pitot() -> None:
+    sensors = _pitot_log()
+    t = sensors["pitot_t_s"]
+    truth = {"t_s": t, "airspeed_m_s": np.full_like(t, 19.0)}
+    iced = dict(sensors, pitot_dp_pa=sensors["pitot_dp_pa"] * (1.0 - 0.02 * np.clip(t - 10.0, 0.0, None)))
+    # 19 · (1 − √(1 − 0.02 τ)) = 1 m/s at τ = (1 − (18/19)²) / 0.02 = 5.12 s
+    assert nav_bench.fault_symptom_s(sensors, iced, truth, 10.0) == pytest.approx(5.12, abs=0.11)
+    assert nav_bench.fault_symptom_s(sensors, sensors, truth, 10.0) is None
 
 
 def test_product_bars_judge_vdm_against_the_autopilots_baselines() -> None:

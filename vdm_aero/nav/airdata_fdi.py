@@ -15,34 +15,57 @@ constant of :data:`TAU_S`; a healthy, consistent source stays near 1.
   both disagree with the state, the state is wrong, not a sensor: the wind has changed (a shear, a
   gradient crossed in a climb), and the filter relearns it (``wind`` event) instead of excluding anything.
   Without the pair (no pitot, or no port air data) the worst source is excluded.
+* **A pitot that reads low, slowly**: icing, a blocked ram inlet, water or a leak in the line all lower the
+  pitot's Δp, and grow from nothing. The pair's level above is scaled by the σ the filter assumes (2.4–2.8 m/s,
+  conservative) and needs ~4.5 m/s; a pitot icing over tens of seconds under-reads by only 0.3–5 m/s 10 s in.
+  So the pair also runs a one-sided CUSUM (Page 1954; Basseville & Nikiforov 1993, §2.2) on the pitot's
+  under-read against the ports, in m/s: its healthy bias (each airframe's pitot and ports see sideslip,
+  propwash and load differently: −1.5 … +0.7 m/s on the harsh fleet) learnt over :data:`DRIFT_BIAS_TAU_S`
+  while the pair agrees, the residual smoothed over :data:`TAU_S`, the excess over :data:`DRIFT_K_M_S`
+  accumulated until it passes :data:`DRIFT_H_M`. Its alarm excludes the pitot: the ports' airspeed is a
+  least-squares solve over twelve ports whose own residuals and per-port health the front end checks, the
+  pitot has no check of its own. It is one-sided because the pitot's failures read low; the healthy
+  disagreement's excursions in manoeuvres go both ways (docs/navigation.md has the figures).
 * **Isolate**: one source at a time is excluded (never fused again until re-admitted); the others keep the
   state honest, and its innovations are still computed against that state.
 * **Re-admit**: an excluded source whose smoothed NIS/dim stays under :data:`READMIT` for
-  :data:`READMIT_HOLD_S` agrees again and is fused again.
+  :data:`READMIT_HOLD_S` agrees again and is fused again (the pitot also only once the under-read test has
+  cleared).
 
-What this cannot do: tell a source that is wrong from a state that is wrong when only one source is left,
-or see a fault that grows slower than the state follows it (a slowly icing pitot pulls a live wind with it;
-the ports' own airspeed is what holds the wind back, so both must be fused for that to be seen).
+What this cannot do: tell a source that is wrong from a state that is wrong when only one source is left;
+see a pitot under-read smaller than the healthy pair's own disagreement (~1 m/s); or, without the ports'
+airspeed, see a fault that grows slower than the state follows it (a slowly icing pitot pulls a live wind
+with it).
 """
 
 from __future__ import annotations
 
 import bisect
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Final
 
+from vdm_aero._typing import F64Array
+
 __all__ = [
     "DETECT",
+    "DRIFT_BIAS_TAU_S",
+    "DRIFT_H_M",
+    "DRIFT_K_M_S",
+    "DRIFT_MIN_AIRSPEED_M_S",
+    "DRIFT_WARMUP_S",
     "PAIR_DETECT",
     "PAIR_MAX_AGE_S",
     "READMIT",
     "READMIT_HOLD_S",
     "SOURCES",
     "TAU_S",
+    "WIND_CHANGE_GUST_SIGMAS",
     "WIND_RELEARN_S",
     "AirDataFdi",
     "FdiEvent",
+    "wind_change_threshold_m_s",
 ]
 
 SOURCES: Final = ("pitot", "ports", "force")
@@ -60,6 +83,15 @@ PAIR_MAX_AGE_S: Final = 0.5  # the pair's two readings at most this far apart
 WIND_RELEARN_S: Final = 30.0  # after a wind event the wind is learnt for this long; no second event meanwhile
 WIND_LEVEL: Final = 3.0  # both airspeeds this far from the state while agreeing with each other: the wind moved
 SETTLE_S: Final = 5.0  # after an exclusion the state follows the others again: no second exclusion meanwhile
+# The pitot's under-read test (module docstring). Set on the harsh world's healthy flights (20 surveys and 20
+# returns home through a wind gradient, 5.9 h, 2026-11-27): the pitot less the ports, less its learnt bias and
+# smoothed over TAU_S, never read lower than −1.0 m/s, and with K = 0.75 m/s the CUSUM never passed 0.40 m·s/s;
+# H keeps a 2× margin. A step of under-read of 1 m/s is then flagged in ~10 s, one of 2 m/s in ~3 s.
+DRIFT_K_M_S: Final = 0.75
+DRIFT_H_M: Final = 0.8  # [m/s · s]
+DRIFT_BIAS_TAU_S: Final = 60.0  # the pair's healthy bias: long against a manoeuvre, short against a flight
+DRIFT_WARMUP_S: Final = 120.0  # of airborne pair readings before the bias is trusted (two bias time constants)
+DRIFT_MIN_AIRSPEED_M_S: Final = 8.0  # the pitot's useful range (the filter fuses it from there)
 
 
 @dataclass(frozen=True)
@@ -81,6 +113,54 @@ class _Source:
 
 
 @dataclass
+class PitotUnderRead:
+    """The one-sided CUSUM on the pitot's under-read against the ports (module docstring). Feed the pitot's
+    airspeed less the ports' with :meth:`observe`; :attr:`alarm` says the pitot reads low."""
+
+    k_m_s: float = DRIFT_K_M_S
+    h_m: float = DRIFT_H_M
+    bias_tau_s: float = DRIFT_BIAS_TAU_S
+    smooth_tau_s: float = TAU_S
+    warmup_s: float = DRIFT_WARMUP_S
+    bias_m_s: float = 0.0
+    residual_m_s: float = 0.0  # smoothed, less the bias; negative: the pitot reads low
+    cusum_m: float = 0.0
+    first_t_s: float | None = None
+    last_t_s: float | None = None
+
+    @property
+    def alarm(self) -> bool:
+        return self.cusum_m > self.h_m
+
+    def observe(self, t_s: float, difference_m_s: float, *, learn: bool = True) -> None:
+        """The pitot's airspeed less the ports' [m/s] at ``t_s``; ``learn``: both are fused, so a healthy
+        difference may move the bias."""
+        if not math.isfinite(difference_m_s):
+            return
+        if self.first_t_s is None or self.last_t_s is None:
+            self.first_t_s = self.last_t_s = t_s
+            self.bias_m_s, self.residual_m_s, self.cusum_m = difference_m_s, 0.0, 0.0
+            return
+        dt = max(t_s - self.last_t_s, 0.0)
+        self.last_t_s = t_s
+        age = t_s - self.first_t_s
+        a = math.exp(-dt / self.smooth_tau_s)
+        self.residual_m_s = a * self.residual_m_s + (1.0 - a) * (difference_m_s - self.bias_m_s)
+        if age < self.warmup_s:
+            self.cusum_m = 0.0  # the bias is still a short average
+        else:
+            # capped: once the pitot reads true again the alarm clears within ~h/k, not after as long as it lasted
+            self.cusum_m = min(max(0.0, self.cusum_m + (-self.residual_m_s - self.k_m_s) * dt), 2.0 * self.h_m)
+        if learn and self.cusum_m < 0.25 * self.h_m:  # a growing under-read must not teach the bias
+            b = math.exp(-dt / min(self.bias_tau_s, max(age, dt)))  # a running mean until the time constant
+            self.bias_m_s = b * self.bias_m_s + (1.0 - b) * difference_m_s
+
+    def restart(self) -> None:
+        """After the pitot's exclusion: the sum starts again (the bias is kept: it is the healthy pair's)."""
+        self.cusum_m = 0.0
+
+
+@dataclass
 class AirDataFdi:
     """The monitor of :data:`SOURCES` (module docstring). Feed every innovation with :meth:`observe`; ask
     :meth:`fused` before fusing; :attr:`events` is the history."""
@@ -92,6 +172,7 @@ class AirDataFdi:
     tau_s: float = TAU_S
     sources: dict[str, _Source] = field(default_factory=lambda: {s: _Source() for s in SOURCES})
     pair: _Source = field(default_factory=_Source)
+    under_read: PitotUnderRead = field(default_factory=PitotUnderRead)
     events: list[FdiEvent] = field(default_factory=list)
     last_wind_event_s: float = -math.inf
     last_exclusion_s: float = -math.inf
@@ -114,9 +195,13 @@ class AirDataFdi:
         st.level = a * st.level + (1.0 - a) * x
         st.last_t_s = t_s
 
-    def observe_pair(self, t_s: float, difference_m_s: float, sigma_m_s: float) -> None:
-        """The pitot's airspeed less the ports' [m/s] at ``t_s``, with the σ of that difference."""
+    def observe_pair(self, t_s: float, difference_m_s: float, sigma_m_s: float,
+                     airspeed_m_s: float | None = None) -> None:  # fmt: skip
+        """The pitot's airspeed less the ports' [m/s] at ``t_s``, with the σ of that difference; with the
+        pitot's ``airspeed_m_s`` in its useful range, also the under-read test."""
         self._smooth(self.pair, t_s, (difference_m_s / sigma_m_s) ** 2)
+        if airspeed_m_s is not None and airspeed_m_s >= DRIFT_MIN_AIRSPEED_M_S:
+            self.under_read.observe(t_s, difference_m_s, learn=self.fused("pitot") and self.fused("ports"))
 
     def _pair_known(self, t_s: float) -> bool:
         both = self.fused("pitot") and self.fused("ports")
@@ -129,7 +214,7 @@ class AirDataFdi:
         st = self.sources[source]
         self._smooth(st, t_s, nis / max(dim, 1))
         if st.excluded:
-            if st.level < self.readmit:
+            if st.level < self.readmit and not (source == "pitot" and self.under_read.alarm):
                 st.agree_since_s = t_s if st.agree_since_s is None else st.agree_since_s
                 if t_s - st.agree_since_s >= self.readmit_hold_s:
                     st.excluded, st.agree_since_s = False, None
@@ -139,6 +224,10 @@ class AirDataFdi:
             return None
         if t_s - self.last_exclusion_s < SETTLE_S:
             return None  # the state still settling after the last exclusion
+        if source == "pitot" and self.under_read.alarm and self._pair_known(t_s):
+            self.under_read.restart()
+            st.excluded, st.agree_since_s = True, None
+            return self._event(t_s, source, "excluded")
         if self._pair_known(t_s) and source in ("pitot", "ports"):
             other = "ports" if source == "pitot" else "pitot"
             if self.pair.level > self.pair_detect:  # the airspeeds disagree: the one further from the state is wrong
@@ -194,7 +283,22 @@ WIND_CHANGE_WINDOW_S: Final = 10.0
 # 60° over 10 s, |Δw| ≈ 10.6 m/s) read 11.3 m/s (docs/navigation.md). A small margin: a shear under ~8 m/s in
 # 10 s is not caught, and an alarm in healthy flight costs 30 s of a live wind.
 WIND_CHANGE_M_S: Final = 8.0
+# ... and in turbulence, this many of the gust σ the filter measures in flight (per horizontal axis): the
+# turbulence itself changes the wind by that much in 10 s, and a change seen in a gust relearns the wind from
+# the gust and holds it for the rest of the outage. On the harsh world's survey in moderate turbulence (σ
+# 1.6–2.0 m/s, 8 seeds, 2026-11-27) healthy flight's 10-s change reached 4.1–5.5 σ, and under the 8 m/s
+# threshold alone 3–6 of 20 surveys had a false wind event (those flights ended 1.5–3× worse,
+# docs/navigation.md); the wind-shear scenario's change read 4.0–10.8 σ. A 10 m/s shear in 10 s within moderate
+# turbulence is then not always told from the turbulence's own changes: 2 of those 8 went unseen.
+WIND_CHANGE_GUST_SIGMAS: Final = 6.0
 AIR_SMOOTH_S: Final = 1.0  # the ports' air velocity smoothed over this (their noise, single gusts)
+
+
+def wind_change_threshold_m_s(gust_sigma_m_s: F64Array | Sequence[float]) -> float:
+    """The |Δw| over :data:`WIND_CHANGE_WINDOW_S` [m/s] that is a wind change, for the gust σ (N, E, D) [m/s]
+    measured in flight: :data:`WIND_CHANGE_M_S`, or :data:`WIND_CHANGE_GUST_SIGMAS` of the horizontal σ."""
+    sigma_h = math.sqrt(0.5 * (float(gust_sigma_m_s[0]) ** 2 + float(gust_sigma_m_s[1]) ** 2))
+    return max(WIND_CHANGE_M_S, WIND_CHANGE_GUST_SIGMAS * sigma_h)
 
 
 @dataclass

@@ -32,7 +32,13 @@ import numpy as np
 
 from vdm_aero._typing import BoolArray, F64Array
 from vdm_aero.atmosphere import G0_M_S2, density_kg_m3, pressure_altitude_m
-from vdm_aero.nav.airdata_fdi import PAIR_MAX_AGE_S, WIND_CHANGE_M_S, WIND_RELEARN_S, AirDataFdi, WindChangeDetector
+from vdm_aero.nav.airdata_fdi import (
+    PAIR_MAX_AGE_S,
+    WIND_RELEARN_S,
+    AirDataFdi,
+    WindChangeDetector,
+    wind_change_threshold_m_s,
+)
 from vdm_aero.nav.contracts import ImuIncrement, Measurement
 from vdm_aero.nav.design_fit import StabilityDerivatives
 from vdm_aero.nav.engine import EkfEngine, UpdateResult
@@ -808,7 +814,7 @@ class NavFilter:
         meas = Measurement(t_s, np.array([tas]), PitotAirspeed(self.config.pitot_sigma_m_s))
         if self.fdi is not None and self._ports_speed is not None and t_s - self._ports_speed[0] <= PAIR_MAX_AGE_S:
             _, v_ports, sig_ports = self._ports_speed  # the two airspeeds against each other, no state in between
-            self.fdi.observe_pair(t_s, tas - v_ports, math.hypot(self.config.pitot_sigma_m_s, sig_ports))
+            self.fdi.observe_pair(t_s, tas - v_ports, math.hypot(self.config.pitot_sigma_m_s, sig_ports), tas)
         # below the pitot's useful range (and on the ground) it is never fused, but a pitot reading near zero in
         # flight is what a blocked one does: the FDI judges it
         self._fuse_source("pitot", meas, fuse=tas >= 8.0)
@@ -892,7 +898,9 @@ class NavFilter:
                                       (float(x.v_ned[0]), float(x.v_ned[1])))  # fmt: skip
         if self.wind_change.anchored_s is not None:
             self._settle_wind_change(frame.t_s)
-        if change is None or not self.in_outage or change <= WIND_CHANGE_M_S or frame.t_s < self._wind_live_until_s:
+        if change is None or not self.in_outage or frame.t_s < self._wind_live_until_s:
+            return
+        if change <= wind_change_threshold_m_s(self.process.gust_sigma_m_s):
             return
         if self.fdi is not None and self.fdi.wind_changed(frame.t_s, change) is None:
             return
