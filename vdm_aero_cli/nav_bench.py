@@ -579,11 +579,11 @@ def wind_alarm_summary(ms: Sequence[dict[str, Any]], length_s: float) -> dict[st
     """The wind-change alarms of flights whose wind does not change (no shear, no gradient): each one is
     false, and relearns the wind from a gust. Counted in the outage (where the detector acts) over its hours,
     with the median final error of the flights that had one and of those that had none."""
-    had = [any(s == "wind" and 0.0 <= t <= length_s for t, s, _ in (x["fdi_events"] or [])) for x in ms]
-    n = sum(sum(1 for t, s, _ in (x["fdi_events"] or []) if s == "wind" and 0.0 <= t <= length_s) for x in ms)
+    n = np.array([sum(1 for t, s, _ in (x["fdi_events"] or []) if s == "wind" and 0.0 <= t <= length_s) for x in ms])
     fe = np.array([x["final_error_m"] for x in ms])
-    h = np.array(had, dtype=bool)
-    return {"wind_alarms": n, "wind_alarm_outage_h": len(ms) * length_s / 3600.0, "wind_alarm_flights": int(h.sum()),
+    h = n > 0
+    return {"wind_alarms": int(n.sum()), "wind_alarm_outage_h": len(ms) * length_s / 3600.0,
+            "wind_alarm_flights": int(h.sum()),
             "median_with_wind_alarm_m": float(np.median(fe[h])) if h.any() else math.nan,
             "median_without_wind_alarm_m": float(np.median(fe[~h])) if (~h).any() else math.nan}  # fmt: skip
 
