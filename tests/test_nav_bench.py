@@ -98,6 +98,53 @@ def test_water_in_the_pitot_line_is_intermittent_and_erratic() -> None:
     assert np.all(out >= 0.0) and np.all(out <= 1.5 * 220.0)
 
 
+def test_a_scenarios_place_in_the_table_keeps_its_draws() -> None:
+    # a scenario's index seeds its flight's and its fault's draws: a new scenario inserted before an old one
+    # would fly that one's seeds with other winds and faults, and its published figures would no longer repeat
+    assert list(nav_bench.SCENARIOS)[:10] == [
+        "survey", "wind-shear", "loiter", "no-airspeed", "pitot-blocked", "pitot-icing", "pitot-water",
+        "manoeuvring", "survey-calm", "rtl-wind-gradient",
+    ]  # fmt: skip
+    assert nav_bench._draws_of("ports-blocked") == "survey"  # the fault flies the survey's flights
+
+
+def test_blocked_ports_hold_their_trapped_air_follow_the_static_pressure_and_leak() -> None:
+    # a line blocked at its orifice keeps the air it trapped, which leaks into the fuselage (≈ the static pressure
+    # of the transducers' reference side): the reading decays from the blocking moment's Δp towards zero, as the
+    # pitot's vents through its drain, and follows no change of the flow
+    t = np.arange(0.0, 200.0, 0.01)
+    level = {"t_s": t, "pos_ned_m": np.column_stack([np.zeros_like(t), np.zeros_like(t), np.full_like(t, -100.0)])}
+    lo, hi = nav_bench.PORTS_BLOCKED_LEAK_TAU_S
+    dp = np.full((len(t), 12), 200.0)
+    out = _apply_fault({"ports_t_s": t, "ports_dp_pa": dp}, "ports-blocked", 10.0, np.random.default_rng(4), level,
+                       0.0)["ports_dp_pa"]  # fmt: skip
+    np.testing.assert_array_equal(out[t < 10.0], 200.0)
+    blocked = np.flatnonzero(np.any(out[t >= 10.0] != 200.0, axis=0))
+    assert nav_bench.PORTS_BLOCKED_N[0] <= len(blocked) <= nav_bench.PORTS_BLOCKED_N[1]
+    np.testing.assert_array_equal(np.delete(out, blocked, axis=1), 200.0)  # the others untouched
+    assert np.all(dp == 200.0)  # the caller's log is not modified
+
+    def at(y: np.ndarray, s: float) -> float:  # a 1 s mean: the transducer's noise out
+        return float(np.mean(y[(t >= s - 0.5) & (t < s + 0.5)]))
+
+    for k in blocked:  # an exponential with a time constant inside the stated range
+        assert at(out[:, k], 10.0 + hi) <= 200.0 * math.exp(-1.0) * math.exp(0.5 / hi) + 0.2
+        assert at(out[:, k], 10.0 + lo) >= 200.0 * math.exp(-1.0) * math.exp(-0.5 / lo) - 0.2
+    # blocked at a zero reading, then a 2 m/s climb from 50 s: the static pressure falls by ~23.5 Pa/s (ISA near
+    # sea level) and the line's trapped air cannot follow it, so the reading rises towards τ·23.5 Pa, while the
+    # flow's ±3 Pa swing, seen by the healthy ports, no longer shows in it
+    swing = 3.0 * np.sin(2.0 * np.pi * (t - 10.0) / 7.0)
+    down = np.where(t < 50.0, -100.0, -100.0 - 2.0 * (t - 50.0))
+    climb = {"t_s": t, "pos_ned_m": np.column_stack([np.zeros_like(t), np.zeros_like(t), down])}
+    out = _apply_fault({"ports_t_s": t, "ports_dp_pa": np.tile(swing[:, None], (1, 12))}, "ports-blocked", 10.0,
+                       np.random.default_rng(4), climb, 0.0)["ports_dp_pa"]  # fmt: skip
+    for k in blocked:  # the same draws
+        y = out[:, k]
+        assert np.std(y[(t >= 12.0) & (t < 49.0)]) < 0.3  # level: held at zero, noise only
+        rise = at(y, 99.0)
+        assert 0.9 * 23.5 * lo * (1.0 - math.exp(-49.0 / lo)) <= rise <= 1.1 * 23.5 * hi * (1.0 - math.exp(-49.0 / hi))
+
+
 def _fake_unit(world: str, flight: str, seed: int, members: list[tuple[str, str | None]], spec: BenchSpec,
                artifacts: NavArtifacts, outages_s: tuple[float, ...]) -> list[dict[str, Any]]:  # fmt: skip
     """A stand-in for one flight (the real one takes a minute): rows whose numbers depend on the unit."""
@@ -153,6 +200,9 @@ def test_the_harsh_run_flies_both_worlds_and_each_effect_alone(monkeypatch: pyte
     assert next(iter(costs)) == "kind" and list(costs)[-1] == "harsh"
     report = nav_bench.format_report(doc)
     assert "## What each effect costs" in report and "| only:fleet |" in report
+    assert report.startswith(f"# Navigation drift: {len(doc['runs'])} runs, modes ins, seeds 0–1\n")
+    doc["spec"]["first_seed"] = 20  # a run on unseen seeds says so
+    assert "seeds 20–21" in nav_bench.format_report(doc).splitlines()[0]
     # the fleet's airframes are calibrated in their own world; the preset airframe needs none
     assert nav_bench._calibrations(nav_bench._units(spec)) == [
         ("harsh", 0),

@@ -39,8 +39,8 @@ def register(sub: Any) -> None:
     p.add_argument("--seed", type=int, default=0)
     n = p.add_argument_group("nav-drift")
     n.add_argument("--scenario", default="survey", help="comma-separated: survey, wind-shear, loiter, no-airspeed, "
-                   "pitot-blocked, pitot-icing, pitot-water, manoeuvring, survey-calm, rtl-wind-gradient, "
-                   "or all")  # fmt: skip
+                   "pitot-blocked, pitot-icing, pitot-water, ports-blocked, manoeuvring, survey-calm, "
+                   "rtl-wind-gradient, or all")  # fmt: skip
     n.add_argument("--world", choices=("harsh", "kind"), default="harsh",
                    help="harsh (default): every sourced sensor, Earth and fleet effect, reported beside the kind "
                    "world in one run, with the cost-per-effect table; kind: the earlier, ideal world "

@@ -12,6 +12,7 @@ Scenarios: ``survey``, ``wind-shear`` (the wind turns by 60° and strengthens by
 ``loiter``, ``no-airspeed`` (the survey flights without their pitot), the pitot failures at the outage start
 (``pitot-blocked``: the ram inlet blocks with the drain open, so the reading decays towards zero;
 ``pitot-icing``: a growing under-read; ``pitot-water``: water in the line, intermittent and erratic),
+``ports-blocked`` (one to three ports' lines blocked at the outage start: each holds the air it trapped),
 ``manoeuvring`` (45° banks, slow flight at high α, doublets), ``rtl-wind-gradient`` (out at 300 m, home at
 120 m and up again, through a power-law wind profile with veer) and ``survey-calm``, the survey's draws in
 still air, so that the difference to ``survey`` is what turbulence costs.
@@ -38,8 +39,10 @@ from typing import Any, Final
 import numpy as np
 
 from vdm_aero._typing import F64Array
+from vdm_aero.atmosphere import isa
 from vdm_aero.flightlog import SensorLog
 from vdm_aero.geodesy import LocalFrame
+from vdm_aero.lag import first_order_lag
 from vdm_aero.nav.filter import ABLATIONS, MODES, NavConfig, NavFilter, reads_ports
 from vdm_aero.nav.models import NavModels
 from vdm_aero.nav.stream import LogRunner, NavStream, SolutionRecorder
@@ -60,6 +63,8 @@ SCENARIOS: Final = {
     # the survey's flights (same winds, sensor errors and outage starts) in still air: what turbulence costs
     "survey-calm": ("nav-survey", (8.0, 10.0), ("none",), None),
     "rtl-wind-gradient": ("nav-rtl", (6.0, 10.0), ("light", "moderate"), "gradient"),
+    # last: a scenario's place in this table seeds its draws, so a new one is appended
+    "ports-blocked": ("nav-survey", (8.0, 10.0), ("light", "moderate"), "ports-blocked"),
 }
 _FLIGHT_MODS: Final = ("shear", "gradient")  # "faults" that change the flight itself, not the sensor stream
 WORLDS: Final = ("harsh", "kind")
@@ -81,6 +86,14 @@ ICING_GROWTH_S: Final = (10.0, 60.0)
 BLOCKED_DRAIN_TAU_S: Final = (2.0, 10.0)
 WATER_EPISODES_PER_S: Final = (0.1, 0.3)
 WATER_EPISODE_S: Final = (0.5, 3.0)
+# a port group's lines blocked at the orifice (ice, water, an insect): each line holds the air it trapped, which
+# leaks through the tubing's joints into the fuselage, at about the static pressure of the transducers' reference
+# side; the reading starts at the blocking moment's Δp, decays towards zero and, in a climb or descent, follows
+# the static pressure the line no longer sees (the pitot's same failure: FAA-H-8083-25B, ch. 8; port failures of
+# flush air-data systems: Whitmore, Davis & Fife, NASA TM-104314, 1996). 1–3 ports drawn at random, the leak's
+# time constant 10–120 s (assumption: tubing joints, not a hole)
+PORTS_BLOCKED_N: Final = (1, 3)
+PORTS_BLOCKED_LEAK_TAU_S: Final = (10.0, 120.0)
 OUTAGE_START_S: Final = (150.0, 210.0)  # after the filter has converged (wind, biases, model parameters)
 AFTER_S: Final = 20.0  # flown after each outage: the reacquisition
 RECORD_HZ: Final = 5.0
@@ -220,10 +233,14 @@ def _flight(name: str, seed: int, artifacts: NavArtifacts, duration_s: float, wo
 
 
 def _apply_fault(sensors: dict[str, F64Array], fault: str | None, t_out: float,
-                 rng: np.random.Generator | None = None) -> dict[str, F64Array]:  # fmt: skip
+                 rng: np.random.Generator | None = None, truth: dict[str, F64Array] | None = None,
+                 home_alt_m: float = 0.0) -> dict[str, F64Array]:  # fmt: skip
     """Sensor-stream faults injected into the log from ``t_out`` on (as a replay of a real log would); the
-    failures' parameters are drawn from ``rng`` within the ranges of the module's sources."""
+    failures' parameters are drawn from ``rng`` within the ranges of the module's sources. ``ports-blocked``
+    needs the ``truth`` altitude (above ``home_alt_m``) for the static pressure the blocked lines no longer see."""
     s = dict(sensors)
+    if fault == "ports-blocked":
+        return _block_ports(s, t_out, rng if rng is not None else np.random.default_rng(0), truth, home_alt_m)
     if fault == "no-airspeed":
         s["pitot_t_s"], s["pitot_dp_pa"], s["pitot_temperature_c"] = np.zeros(0), np.zeros(0), np.zeros(0)
         return s
@@ -250,6 +267,37 @@ def _apply_fault(sensors: dict[str, F64Array], fault: str | None, t_out: float,
         idx = np.flatnonzero(after)[sel]
         dp[idx] *= rng.uniform(0.0, 1.5, len(idx))
     s["pitot_dp_pa"] = dp
+    return s
+
+
+def _block_ports(s: dict[str, F64Array], t_out: float, rng: np.random.Generator, truth: dict[str, F64Array] | None,
+                 home_alt_m: float) -> dict[str, F64Array]:  # fmt: skip
+    """:data:`PORTS_BLOCKED_N` ports blocked from ``t_out`` on (their comment): the line's pressure relaxes from
+    the port's at the blocking towards the static pressure (ISA, from the truth altitude) through a first-order
+    leak, τ·ṗ_line = p_static − p_line; the reading is p_line − p_static, with the transducer's noise and
+    quantisation."""
+    from sim.flight.sensors import PORT_GRADES
+
+    if truth is None:
+        raise ValueError("ports-blocked needs the truth altitude")
+    t, dp = s["ports_t_s"], s["ports_dp_pa"].copy()
+    after = t >= t_out
+    if not after.any():
+        return s
+    i0 = int(np.argmax(after))
+    n = int(rng.integers(PORTS_BLOCKED_N[0], PORTS_BLOCKED_N[1] + 1))
+    ports = rng.choice(dp.shape[1], size=n, replace=False)
+    tau = rng.uniform(*PORTS_BLOCKED_LEAK_TAU_S, n)
+    alt = home_alt_m - np.interp(t[after], truth["t_s"], truth["pos_ned_m"][:, 2])
+    p_static = np.array([isa(float(h))[0] for h in alt])
+    ta = t[after] - t_out
+    g = PORT_GRADES["sdp31"]
+    for k, port in enumerate(ports):
+        # p_line = lag(p_static) (settled at the start) + its start's excess Δp₀ decaying: the lag is linear
+        held = (dp[i0, port] * np.exp(-ta / tau[k]) + first_order_lag(ta, p_static, float(tau[k])) - p_static
+                + g.noise_pa * rng.standard_normal(len(ta)))  # fmt: skip
+        dp[after, port] = np.clip(np.round(held / g.resolution_pa) * g.resolution_pa, -g.range_pa, g.range_pa)
+    s["ports_dp_pa"] = dp
     return s
 
 
@@ -338,9 +386,17 @@ def run_filters(
         cpu = pre_cpu + time.process_time() - c0
         flown = pre_flight + (branch.t_s - t_out)
         results["filter_cpu_s_per_flight_s"][f"{length:g}"] = cpu / max(flown, 1e-9) / max(len(modes), 1)
-        results["outages"][f"{length:g}"] = {
+        results["outages"][f"{length:g}"] = scored = {
             m: _metrics(store[m], truth, t_out, length, branch.filters[m]) for m in modes
         }
+        if branch.frontend is not None:  # the front end's port verdicts, beside each port mode's air-data FDI
+            ports = [[round(t - t_out, 2), "port", "excluded" if w == "quiet" else "readmitted"]
+                     for t, _, w in branch.frontend.events]  # fmt: skip
+            for mode in modes:
+                if reads_ports(mode) and scored[mode]["fdi_events"] is not None:
+                    scored[mode]["fdi_events"] = sorted(scored[mode]["fdi_events"] + ports)
+            results.setdefault("port_events", {})[f"{length:g}"] = [
+                [round(t - t_out, 2), i, w] for t, i, w in branch.frontend.events]  # fmt: skip
     if "ins" in modes:  # the free-inertial reference for the theory check: ins on its IMU alone
         results["free_inertial"] = {}
         solo = copy.deepcopy(runner)
@@ -444,7 +500,8 @@ def run_unit(world: str, flight: str, seed: int, scen_faults: list[tuple[str, st
     out = []
     for name, fault in scen_faults:
         rng = np.random.default_rng([list(SCENARIOS).index(name), seed, 99])
-        s = _apply_fault(sensors, fault if fault not in _FLIGHT_MODS else None, t_out, rng)
+        s = _apply_fault(sensors, fault if fault not in _FLIGHT_MODS else None, t_out, rng, truth,
+                         meta["home"]["alt_m"])  # fmt: skip
         res = run_filters(s, truth, meta, t_out, lengths, spec.modes, nav)
         symptom = fault_symptom_s(sensors, s, truth, t_out) if name.startswith("pitot-") else None
         out.append({"world": world, "scenario": name, "seed": seed, "outage_start_s": t_out, "fault_symptom_s": symptom,
@@ -564,7 +621,7 @@ def summarise(rows: list[dict[str, Any]], spec: BenchSpec) -> dict[str, Any]:
                 "seeds": len(ms),
             }
             if ms[0].get("fdi_events") is not None:
-                per[m] |= fdi_summary(ms, faulty=SCENARIOS[sc][3] is not None and sc.startswith("pitot-"),
+                per[m] |= fdi_summary(ms, faulty=sc in FAULT_SOURCES, sources=FAULT_SOURCES.get(sc, ()),
                                       symptoms_s=[r.get("fault_symptom_s") for r in runs])  # fmt: skip
                 if SCENARIOS[sc][3] not in _FLIGHT_MODS:
                     per[m] |= wind_alarm_summary(ms, float(key))
@@ -573,6 +630,10 @@ def summarise(rows: list[dict[str, Any]], spec: BenchSpec) -> dict[str, Any]:
 
 
 DETECT_BAR_S: Final = 10.0
+# the sources whose exclusion flags each sensor fault: a blocked port is flagged by the front end's per-port check
+# ("port"), or by the air-data FDI excluding the ports' air data or the force model they feed
+FAULT_SOURCES: Final = {"pitot-blocked": ("pitot",), "pitot-icing": ("pitot",), "pitot-water": ("pitot",),
+                        "ports-blocked": ("port", "ports", "force")}  # fmt: skip
 
 
 def wind_alarm_summary(ms: Sequence[dict[str, Any]], length_s: float) -> dict[str, Any]:
@@ -588,10 +649,11 @@ def wind_alarm_summary(ms: Sequence[dict[str, Any]], length_s: float) -> dict[st
             "median_without_wind_alarm_m": float(np.median(fe[~h])) if (~h).any() else math.nan}  # fmt: skip
 
 
-def fdi_summary(ms: Sequence[dict[str, Any]], *, faulty: bool, symptoms_s: Sequence[float | None] = ()
-                ) -> dict[str, Any]:  # fmt: skip
-    """The air-data FDI over the seeds of one scenario and outage: the pitot's time to exclusion after the fault
-    starts (at the outage start), the share of seeds flagged within :data:`DETECT_BAR_S`, and the exclusions of
+def fdi_summary(ms: Sequence[dict[str, Any]], *, faulty: bool, symptoms_s: Sequence[float | None] = (),
+                sources: Sequence[str] = ("pitot",)) -> dict[str, Any]:  # fmt: skip
+    """The air-data FDI over the seeds of one scenario and outage: the time to the first exclusion of one of the
+    faulty ``sources`` after the fault starts (at the outage start), the share of seeds flagged within
+    :data:`DETECT_BAR_S`, and the exclusions of
     healthy flight (before a fault, or all of a healthy scenario's flight) over its hours. With each seed's
     first symptom (:func:`fault_symptom_s`), also the time from it and the share flagged within the bar of it,
     over the seeds whose fault showed one in the outage."""
@@ -602,7 +664,7 @@ def fdi_summary(ms: Sequence[dict[str, Any]], *, faulty: bool, symptoms_s: Seque
         healthy_s += -t0 if faulty else t1 - t0
         false_alarms += sum(1 for t, s, w in ev if w == "excluded" and (t < 0.0 or not faulty))
         if faulty:
-            hits = [t for t, s, w in ev if s == "pitot" and w == "excluded" and t >= 0.0]
+            hits = [t for t, s, w in ev if s in sources and w == "excluded" and t >= 0.0]
             detect.append(hits[0] if hits else math.nan)
     out: dict[str, Any] = {"fdi_false_alarms": false_alarms, "fdi_healthy_h": healthy_s / 3600.0}
     if faulty:
@@ -885,9 +947,10 @@ def product_bars(summary: dict[str, Any]) -> list[tuple[str, str, bool, str]]:
             out.append((f"{w} {sc} {length} s: {v} ≤ 1.05× the best of ins and {dr}",
                         f"{a:.0f} / {best:.0f} m = {a / best:.2f}×", a <= 1.05 * best,
                         "the same flights; a median of few seeds"))  # fmt: skip
-        if sc.startswith("pitot-") and length in ("120", "300") and a is not None and b is not None:
-            out.append((f"{w} {sc} {length} s: {v} ≤ 0.5× {dr}", f"{a / b:.2f}×", a <= 0.5 * b,
-                        f"{dr} reads the failed pitot; a fault too mild to matter passes"))  # fmt: skip
+        if sc in FAULT_SOURCES and length in ("120", "300") and a is not None and b is not None:
+            if sc.startswith("pitot-"):
+                out.append((f"{w} {sc} {length} s: {v} ≤ 0.5× {dr}", f"{a / b:.2f}×", a <= 0.5 * b,
+                            f"{dr} reads the failed pitot; a fault too mild to matter passes"))  # fmt: skip
             healthy = med(f"{w}/survey/{length}", v)
             if healthy is not None:
                 out.append((f"{w} {sc} {length} s: {v} ≤ 1.3× its healthy survey", f"{a / healthy:.2f}×",
@@ -900,8 +963,9 @@ def product_bars(summary: dict[str, Any]) -> list[tuple[str, str, bool, str]]:
                             f"{100 * per[v]['fdi_symptom_by_10s']:.0f} %, flagged within {DETECT_BAR_S:g} s of that in "
                             f"{100 * per[v]['fdi_flagged_10s_after_symptom']:.0f} % (median "
                             f"{per[v]['fdi_after_symptom_median_s']:.1f} s)")  # fmt: skip
-                out.append((f"{w} {sc} {length} s: {v} flags the pitot within {DETECT_BAR_S:g} s of the fault (≥ 90 % "
-                            "of seeds)", f"{100 * flagged:.0f} % (median {per[v]['fdi_detect_median_s']:.1f} s){seen}",
+                out.append((f"{w} {sc} {length} s: {v} flags the {' or '.join(FAULT_SOURCES[sc])} within "
+                            f"{DETECT_BAR_S:g} s of the fault (≥ 90 % of seeds)",
+                            f"{100 * flagged:.0f} % (median {per[v]['fdi_detect_median_s']:.1f} s){seen}",
                             flagged >= 0.9, "the fault starts at the outage start; a slow icing ramp may be "
                             "harmless for its first seconds"))  # fmt: skip
         if sc in ("wind-shear", "rtl-wind-gradient") and length == "300" and None not in (a, b, ins):
@@ -951,7 +1015,9 @@ def cost_table(rows: Sequence[dict[str, Any]], modes: Sequence[str], stat: str =
 
 def format_report(doc: dict[str, Any]) -> str:
     spec = doc["spec"]
-    lines = [f"# Navigation drift: {len(doc['runs'])} runs, modes {', '.join(spec['modes'])}", ""]
+    first = int(spec.get("first_seed", 0))  # a run on other seeds says which: a threshold's unseen-seed check
+    lines = [f"# Navigation drift: {len(doc['runs'])} runs, modes {', '.join(spec['modes'])}, seeds {first}–"
+             f"{first + int(spec['seeds']) - 1}", ""]  # fmt: skip
     for key, per in doc["summary"].items():
         world, sc, length = key.split("/")
         if world.startswith("only:"):

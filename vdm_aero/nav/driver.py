@@ -129,7 +129,7 @@ class NavDriver:
         fe = self.frontend
         if fe is None:
             return None
-        ok = fe.health(dp_pa)
+        ok = fe.health(dp_pa, t_s)
         if t_s < self._next_port_solve:
             return None
         self._next_port_solve = t_s + 1.0 / PORT_SOLVE_HZ - 1e-6
