@@ -89,9 +89,9 @@ WATER_EPISODE_S: Final = (0.5, 3.0)
 # a port group's lines blocked at the orifice (ice, water, an insect): each line holds the air it trapped, which
 # leaks through the tubing's joints into the fuselage, at about the static pressure of the transducers' reference
 # side; the reading starts at the blocking moment's Δp, decays towards zero and, in a climb or descent, follows
-# the static pressure the line no longer sees (the pitot's same failure: FAA-H-8083-25B, ch. 8; port failures of
-# flush air-data systems: Whitmore, Davis & Fife, NASA TM-104314, 1996). 1–3 ports drawn at random, the leak's
-# time constant 10–120 s (assumption: tubing joints, not a hole)
+# the static pressure the line no longer sees (the pitot's same failure: FAA-H-8083-25B, ch. 8; a flush air-data
+# system robust to port failures: Whitmore, Davis & Fife, the RT-FADS flight demonstration, NASA Dryden 1995).
+# 1–3 ports drawn at random, the leak's time constant 10–120 s (assumption: tubing joints, not a hole)
 PORTS_BLOCKED_N: Final = (1, 3)
 PORTS_BLOCKED_LEAK_TAU_S: Final = (10.0, 120.0)
 OUTAGE_START_S: Final = (150.0, 210.0)  # after the filter has converged (wind, biases, model parameters)
