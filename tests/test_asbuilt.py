@@ -129,6 +129,33 @@ def test_port_installation_errors_belong_to_the_airframe() -> None:
     assert np.all(np.abs(a.offset_m) == ASB.ports.offset_m)
 
 
+def test_a_released_payload_leaves_the_aircraft_lighter_at_once(asbuilt: Vehicle, design: Vehicle) -> None:
+    # the payload-release scenario: mass, CG and inertia lose the payload; at the release instant nothing
+    # aerodynamic has changed yet (same airflow, same deflections, same thrust), so Newton's second law scales
+    # every axis of the specific force by m_before / m_after
+    light = asbuilt.without_payload()
+    assert light.mass.mass_kg == pytest.approx(design.mass.mass_kg, abs=1e-12)
+    assert light.r_cg_b[0] == pytest.approx(asbuilt.r_cg_b[0] - ASB.mass.payload_kg * ASB.mass.payload_x_m
+                                            / asbuilt.mass.mass_kg, abs=1e-3)  # fmt: skip
+    assert np.all(np.diag(light.mass.inertia_kg_m2) < np.diag(asbuilt.mass.inertia_kg_m2))
+    with pytest.raises(ValueError, match="no payload"):
+        design.without_payload()
+    sc = replace(load_scenario("calibration-asbuilt"), turbulence="none", duration_s=30.0, payload_release_s=2.0)
+    world = FlightWorld(sc, asbuilt)
+    f_b = {}
+    while world.t_s < 2.0 + 1.5 * world.dt_s:
+        tick = world.step()
+        f_b[round(world.t_s / world.dt_s)] = tick.truth.specific_force_b_m_s2
+    n = round(2.0 / world.dt_s)
+    k = asbuilt.mass.mass_kg / light.mass.mass_kg  # 1.08
+    # one 2.5-ms step's own change of the flow stays well under the payload's 8 % (f_y is near zero: absolute)
+    assert f_b[n] == pytest.approx(k * f_b[n - 1], rel=2e-3, abs=0.01)
+    assert np.linalg.norm(f_b[n] - f_b[n - 1]) > 0.5  # the step itself: ≈ 8 % of g
+    assert world.vehicle.mass.mass_kg == light.mass.mass_kg
+    with pytest.raises(ValueError, match="no payload"):
+        FlightWorld(replace(sc, vehicle=VEHICLES["uav-2m"], as_built_effects=frozenset()))
+
+
 def test_slipstream_grows_with_thrust(asbuilt: Vehicle) -> None:
     sc = load_scenario("calibration-asbuilt")
     world = FlightWorld(sc, asbuilt)
@@ -164,11 +191,18 @@ def test_scenario_effects_are_checked() -> None:
     doc["vehicle"] = "uav-2m"
     with pytest.raises(SpecError, match="as_built_effects: vehicle uav-2m is a design"):
         parse_scenario(doc, origin="c.yaml")
+    doc["payload_release_s"] = 5.0  # the payload this aircraft carries (mass_properties) can be dropped
+    with pytest.raises(SpecError, match="payload_release_s: only an as-built vehicle with mass_properties"):
+        parse_scenario(doc | {"vehicle": "uav-2m-asbuilt"}, origin="c.yaml")
+    del doc["payload_release_s"]
     del doc["as_built_effects"]
     doc["manoeuvres"] = [{"type": "doublet", "start_s": 1.0, "axis": "sideways", "amplitude_deg": 2, "period_s": 1}]
     with pytest.raises(SpecError, match=r"manoeuvres\[0\].axis"):
         parse_scenario(doc, origin="c.yaml")
     assert "uav-2m-asbuilt" in VEHICLES
+    doc |= {"vehicle": "uav-2m-asbuilt", "as_built_effects": "all", "payload_release_s": 5.0}
+    del doc["manoeuvres"]
+    assert parse_scenario(doc, origin="c.yaml").payload_release_s == 5.0
 
 
 def test_manoeuvres_excite_the_aircraft(asbuilt: Vehicle) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 from types import SimpleNamespace
 from typing import Any
 
@@ -106,6 +107,21 @@ def test_a_scenarios_place_in_the_table_keeps_its_draws() -> None:
         "manoeuvring", "survey-calm", "rtl-wind-gradient",
     ]  # fmt: skip
     assert nav_bench._draws_of("ports-blocked") == "survey"  # the fault flies the survey's flights
+    assert nav_bench._draws_of("payload-release") == "survey"  # and so does the release, until it drops
+
+
+def test_the_payload_is_released_at_the_outage_start_of_the_surveys_flight(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Any
+) -> None:
+    import sim.flight.record
+
+    monkeypatch.setattr(sim.flight.record, "with_model_ports", lambda sc, _d: sc)
+    survey, _, t_out = nav_bench.bench_scenario("survey", 2, tmp_path, 2.0, "harsh")
+    drop, _, t_drop = nav_bench.bench_scenario("payload-release", 2, tmp_path, 2.0, "harsh")
+    assert t_drop == t_out and survey.payload_release_s is None
+    assert replace(drop, payload_release_s=None) == survey  # the same flight up to the release
+    assert drop.payload_release_s == t_out
+    assert nav_bench._flight_key("payload-release")[1] == "payload"  # a separate flight: the world changes
 
 
 def test_blocked_ports_hold_their_trapped_air_follow_the_static_pressure_and_leak() -> None:

@@ -194,7 +194,7 @@ def _nav_scenario(args: argparse.Namespace) -> Any:
 
     if args.nav_scenario not in SCENARIOS:
         raise UserInputError(f"--nav-scenario: unknown {args.nav_scenario!r}; known: {', '.join(SCENARIOS)}")
-    if SCENARIOS[args.nav_scenario][3] not in (None, "shear", "gradient"):
+    if SCENARIOS[args.nav_scenario][3] not in (None, "shear", "gradient", "payload"):
         raise UserInputError(f"--nav-scenario {args.nav_scenario}: its fault is injected into logs, not the world")
     if args.ports_model is None:
         raise UserInputError("--nav-scenario needs --ports-model DIR (the DEIM model that placed the ports)")

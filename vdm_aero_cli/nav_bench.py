@@ -13,6 +13,8 @@ Scenarios: ``survey``, ``wind-shear`` (the wind turns by 60° and strengthens by
 (``pitot-blocked``: the ram inlet blocks with the drain open, so the reading decays towards zero;
 ``pitot-icing``: a growing under-read; ``pitot-water``: water in the line, intermittent and erratic),
 ``ports-blocked`` (one to three ports' lines blocked at the outage start: each holds the air it trapped),
+``payload-release`` (the airframe's payload dropped at the outage start: the force model calibrated with it on
+board no longer fits),
 ``manoeuvring`` (45° banks, slow flight at high α, doublets), ``rtl-wind-gradient`` (out at 300 m, home at
 120 m and up again, through a power-law wind profile with veer) and ``survey-calm``, the survey's draws in
 still air, so that the difference to ``survey`` is what turbulence costs.
@@ -65,8 +67,10 @@ SCENARIOS: Final = {
     "rtl-wind-gradient": ("nav-rtl", (6.0, 10.0), ("light", "moderate"), "gradient"),
     # last: a scenario's place in this table seeds its draws, so a new one is appended
     "ports-blocked": ("nav-survey", (8.0, 10.0), ("light", "moderate"), "ports-blocked"),
+    "payload-release": ("nav-survey", (8.0, 10.0), ("light", "moderate"), "payload"),
 }
-_FLIGHT_MODS: Final = ("shear", "gradient")  # "faults" that change the flight itself, not the sensor stream
+_WIND_MODS: Final = ("shear", "gradient")  # flights whose wind changes: their own draws
+_FLIGHT_MODS: Final = (*_WIND_MODS, "payload")  # "faults" that change the flight itself, not the sensor stream
 WORLDS: Final = ("harsh", "kind")
 AIRFRAMES: Final = 4  # the harsh world's fleet: seed k flies airframe k mod AIRFRAMES
 COST_SCENARIO: Final = "survey"
@@ -161,10 +165,15 @@ def airframe_of(world: str, seed: int) -> int:
 
 
 def _draws_of(name: str) -> str:
-    """The scenario whose random draws a flight uses: the first with the same preset and shear, so the
-    fault scenarios and ``survey-calm`` fly the survey's winds, sensor errors and outage starts (paired)."""
-    preset, shear, _ = _flight_key(name)
-    return next(n for n in SCENARIOS if _flight_key(n)[:2] == (preset, shear))
+    """The scenario whose random draws a flight uses: the first with the same preset and change of wind, so
+    the fault scenarios (the payload release too) and ``survey-calm`` fly the survey's winds, sensor errors and
+    outage starts (paired)."""
+
+    def key(n: str) -> tuple[str, str | None]:
+        preset, mod, _ = _flight_key(n)
+        return preset, mod if mod in _WIND_MODS else None
+
+    return next(n for n in SCENARIOS if key(n) == key(name))
 
 
 def bench_scenario(name: str, seed: int, deim_dir: Path, duration_s: float, world: str = "kind"
@@ -197,7 +206,8 @@ def bench_scenario(name: str, seed: int, deim_dir: Path, duration_s: float, worl
         profile = WindProfile(reference_height_m=120.0, exponent=float(rng.uniform(*GRADIENT_EXPONENT)),
                               veer_deg_per_100m=float(rng.uniform(*GRADIENT_VEER_DEG_PER_100M)))  # fmt: skip
     sc = replace(sc, seed=int(rng.integers(2**31)), wind=wind, turbulence=level, wind_shear=wind_shear,
-                 wind_profile=profile, duration_s=duration_s)  # fmt: skip
+                 wind_profile=profile, duration_s=duration_s,
+                 payload_release_s=t_out if mod == "payload" else None)  # fmt: skip
     airframe = airframe_of(world, seed)
     sc = with_world(sc, world_effects(world), airframe)
     imu_part = sc.imu.grade.name
@@ -623,7 +633,7 @@ def summarise(rows: list[dict[str, Any]], spec: BenchSpec) -> dict[str, Any]:
             if ms[0].get("fdi_events") is not None:
                 per[m] |= fdi_summary(ms, faulty=sc in FAULT_SOURCES, sources=FAULT_SOURCES.get(sc, ()),
                                       symptoms_s=[r.get("fault_symptom_s") for r in runs])  # fmt: skip
-                if SCENARIOS[sc][3] not in _FLIGHT_MODS:
+                if SCENARIOS[sc][3] not in _WIND_MODS:
                     per[m] |= wind_alarm_summary(ms, float(key))
         out[f"{world}/{sc}/{key}"] = per
     return out
@@ -633,7 +643,7 @@ DETECT_BAR_S: Final = 10.0
 # the sources whose exclusion flags each sensor fault: a blocked port is flagged by the front end's per-port check
 # ("port"), or by the air-data FDI excluding the ports' air data or the force model they feed
 FAULT_SOURCES: Final = {"pitot-blocked": ("pitot",), "pitot-icing": ("pitot",), "pitot-water": ("pitot",),
-                        "ports-blocked": ("port", "ports", "force")}  # fmt: skip
+                        "ports-blocked": ("port", "ports", "force"), "payload-release": ("force",)}  # fmt: skip
 
 
 def wind_alarm_summary(ms: Sequence[dict[str, Any]], length_s: float) -> dict[str, Any]:

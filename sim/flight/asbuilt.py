@@ -53,6 +53,7 @@ __all__ = [
     "AsBuiltSpec",
     "AsBuiltStripAero",
     "ControlMap",
+    "MassChanges",
     "PortInstallationErrors",
     "UnsteadyLag",
     "as_built_airframe",

@@ -241,6 +241,7 @@ class Scenario:
     manoeuvres: tuple[Manoeuvre, ...] = ()
     wind_shear: WindShear | None = None
     wind_profile: WindProfile | None = None
+    payload_release_s: float | None = None  # the as-built payload is dropped at this time [s] (None: kept)
     # the harsh world (sim.flight.world_effects): which effects are on, and which airframe of the fleet flies
     # (its sensor installation, and with ``fleet`` its build, are drawn from the fleet's generator and it)
     world_effects: frozenset[str] = frozenset()
@@ -525,6 +526,11 @@ def parse_scenario(data: Any, *, origin: str = "<scenario>") -> Scenario:
         else:
             raise r.fail("world_effects", f"expected 'all' or a list of effect names, got {raw!r}")
     airframe_index = r.integer("airframe_index") if r.has("airframe_index") else 0
+    release = None
+    if r.has("payload_release_s"):  # optional: the as-built payload is dropped then (a delivery)
+        if "mass_properties" not in effects:
+            raise r.fail("payload_release_s", "only an as-built vehicle with mass_properties carries a payload")
+        release = r.num("payload_release_s", lo=0.0, hi=duration)
     if r.has("max_bank_deg"):  # the autopilot's bank limit (ArduPlane ROLL_LIMIT_DEG) for manoeuvring flight
         bank = math.radians(r.num("max_bank_deg", lo=10.0, hi=60.0))
         vehicle = replace(vehicle, gains=replace(vehicle.gains, max_bank_rad=bank))
@@ -555,6 +561,7 @@ def parse_scenario(data: Any, *, origin: str = "<scenario>") -> Scenario:
         manoeuvres=manoeuvres,
         wind_shear=shear,
         wind_profile=profile,
+        payload_release_s=release,
         world_effects=world_effects,
         airframe_index=airframe_index,
         origin=origin,

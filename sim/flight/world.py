@@ -44,6 +44,7 @@ from sim.flight.asbuilt import (
     AsBuiltSpec,
     AsBuiltStripAero,
     ControlMap,
+    MassChanges,
     PortInstallationErrors,
     UnsteadyLag,
     as_built_airframe,
@@ -149,8 +150,7 @@ class Vehicle:
         mass = MassProperties.from_geometry(sim.geometry)
         r_cg = np.zeros(3)
         if asb is not None and "mass_properties" in on:
-            design_battery_kg = sim.geometry.design.mass_kg - _component_mass(sim.geometry)
-            mass, r_cg = as_built_mass(mass, sim.geometry.battery_b, design_battery_kg, asb.mass)
+            mass, r_cg = _built_mass(sim.geometry, asb.mass)
         propulsion = preset.propulsion if asb is None else as_built_propulsion(preset.propulsion, asb, on, r_cg)
         return cls(
             preset=preset,
@@ -164,6 +164,17 @@ class Vehicle:
             r_cg_b=r_cg,
         )
 
+    def without_payload(self) -> Vehicle:
+        """The same aircraft once its payload is released (a drop, a delivery): mass, CG and inertia without
+        it, the thrust hub measured from the new CG. ValueError if it carries none (only an as-built vehicle
+        with ``mass_properties`` does)."""
+        asb = self.as_built
+        if asb is None or "mass_properties" not in self.effects or not asb.mass.payload_kg > 0.0:
+            raise ValueError(f"{self.preset.name}: carries no payload to release (as-built mass_properties off)")
+        mass, r_cg = _built_mass(self.geometry, replace(asb.mass, payload_kg=0.0))
+        propulsion = as_built_propulsion(self.preset.propulsion, asb, self.effects, r_cg)
+        return replace(self, mass=mass, r_cg_b=r_cg, propulsion=propulsion)
+
     def port_layout(self, names: tuple[str, ...], points_b: F64Array, tolerance_m: float, where: str) -> PortLayout:
         """Ports snapped to this vehicle's surface points (see :func:`sim.flight.aero.resolve_ports`)."""
         try:
@@ -176,6 +187,12 @@ def asb_all() -> frozenset[str]:
     from sim.flight.asbuilt import AS_BUILT_EFFECTS
 
     return frozenset(AS_BUILT_EFFECTS)
+
+
+def _built_mass(geometry: AirframeGeometry, changes: MassChanges) -> tuple[MassProperties, F64Array]:
+    """The as-built mass properties and CG offset [m] (:func:`sim.flight.asbuilt.as_built_mass`)."""
+    design_battery_kg = geometry.design.mass_kg - _component_mass(geometry)
+    return as_built_mass(MassProperties.from_geometry(geometry), geometry.battery_b, design_battery_kg, changes)
 
 
 def _component_mass(geometry: AirframeGeometry) -> float:
@@ -331,26 +348,13 @@ class FlightWorld:
         self.port_errors: PortInstallationErrors | None = None
         if asb is not None and "port_installation" in on:
             self.port_errors = port_installation_errors(self.ports.names, asb.ports)
-        self.strip_aero: StripAero
-        if asb is not None and on:
-            self.strip_aero = AsBuiltStripAero(
-                vehicle.model,
-                self.ports,
-                asb,
-                on,
-                r_cg_b=vehicle.r_cg_b,
-                propulsion=vehicle.propulsion,
-                port_offsets_m=None if self.port_errors is None else self.port_errors.offset_m,
-            )
-        else:
-            self.strip_aero = StripAero(vehicle.model, self.ports)
-        self.aero = LinearizedAero(self.strip_aero)
-        self.dynamics = AircraftDynamics(vehicle.mass, vehicle.reference, vehicle.propulsion, self.aero)
+        self._fly(vehicle)
         self.control_map = ControlMap.build(asb, on)
         self._unsteady: UnsteadyLag | None = None
         self._disk_m2 = 0.25 * math.pi * vehicle.propulsion.propeller.diameter_m**2
-        self._imu_arm_b = -np.asarray(vehicle.r_cg_b)  # the IMU sits at the design CG
-        self._has_arm = bool(np.any(self._imu_arm_b != 0.0))
+        self._release_s = sc.payload_release_s
+        if self._release_s is not None:
+            self._light = vehicle.without_payload()  # fails at build time, not mid-flight
         self._manoeuvres = list(sc.manoeuvres)
         self._throttle_hold: tuple[float, float] | None = None  # (until [s], throttle)
         self._doublet: tuple[float, float, int, float] | None = None  # (start, period, axis, amplitude [rad])
@@ -461,6 +465,35 @@ class FlightWorld:
         self._n = 0
         self.t_s = 0.0
         self._pwm_cmd = self.actuators.pwm_of(self.actuators.command)
+
+    def _fly(self, vehicle: Vehicle) -> None:
+        """The aerodynamics and equations of motion of ``vehicle``'s mass, CG and propulsion (at the start,
+        and again when a payload leaves: the aerodynamic moments are taken about the CG)."""
+        asb, on = vehicle.as_built, vehicle.effects
+        self.strip_aero: StripAero
+        if asb is not None and on:
+            self.strip_aero = AsBuiltStripAero(
+                vehicle.model,
+                self.ports,
+                asb,
+                on,
+                r_cg_b=vehicle.r_cg_b,
+                propulsion=vehicle.propulsion,
+                port_offsets_m=None if self.port_errors is None else self.port_errors.offset_m,
+            )
+        else:
+            self.strip_aero = StripAero(vehicle.model, self.ports)
+        self.aero = LinearizedAero(self.strip_aero)
+        self.dynamics = AircraftDynamics(vehicle.mass, vehicle.reference, vehicle.propulsion, self.aero)
+        self._imu_arm_b = -np.asarray(vehicle.r_cg_b)  # the IMU sits at the design CG
+        self._has_arm = bool(np.any(self._imu_arm_b != 0.0))
+
+    def _release_payload(self) -> None:
+        """The payload leaves at once (a drop): from this step on the aircraft flies without its mass. The
+        autopilot is not told; its integrators retrim, as a real one's do."""
+        self._release_s = None
+        self.vehicle = self._light
+        self._fly(self._light)
 
     # ----------------------------------------------------------------------------------- helpers
     @property
@@ -643,7 +676,10 @@ class FlightWorld:
             self._earth = self._earth_accel(y)
         self._u = self._inputs()
         x_air = self._air_state(y)
-        if n % self._div_aero == 0 or self.aero.out_of_bounds(x_air):
+        release = self._release_s is not None and t >= self._release_s
+        if release:
+            self._release_payload()
+        if release or n % self._div_aero == 0 or self.aero.out_of_bounds(x_air):
             self.aero.update(x_air)
         self._k1, aux = self.dynamics.derivative(y, self._u)
         self._aux = aux

@@ -35,7 +35,10 @@ constant of :data:`TAU_S`; a healthy, consistent source stays near 1.
 What this cannot do: tell a source that is wrong from a state that is wrong when only one source is left;
 see a pitot under-read smaller than the healthy pair's own disagreement (~1 m/s); or, without the ports'
 airspeed, see a fault that grows slower than the state follows it (a slowly icing pitot pulls a live wind
-with it).
+with it). Nor tell a pitot that starts to read low from a flight condition its bias was not learnt in: the
+ports' airspeed error depends on α (on the harsh fleet up to ~1.9 m/s low at 13 m/s), so speeding up after
+a minute of slow flight, or a payload dropped, excludes a healthy pitot (docs/navigation.md, "The scenarios
+the 20-seed runs had left out").
 """
 
 from __future__ import annotations
