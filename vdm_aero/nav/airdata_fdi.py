@@ -49,6 +49,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Final
 
+import numpy as np
+
 from vdm_aero._typing import F64Array
 
 __all__ = [
@@ -57,6 +59,7 @@ __all__ = [
     "DRIFT_H_M",
     "DRIFT_K_M_S",
     "DRIFT_MIN_AIRSPEED_M_S",
+    "DRIFT_SLOPE_PRIOR_M_S_PER_RAD",
     "DRIFT_WARMUP_S",
     "PAIR_DETECT",
     "PAIR_MAX_AGE_S",
@@ -95,6 +98,10 @@ DRIFT_H_M: Final = 0.8  # [m/s · s]
 DRIFT_BIAS_TAU_S: Final = 60.0  # the pair's healthy bias: long against a manoeuvre, short against a flight
 DRIFT_WARMUP_S: Final = 120.0  # of airborne pair readings before the bias is trusted (two bias time constants)
 DRIFT_MIN_AIRSPEED_M_S: Final = 8.0  # the pitot's useful range (the filter fuses it from there)
+# the healthy difference's slope in the ports' α: a weak prior of none (3.5 m/s per degree, 1σ), so the line is
+# defined before α has varied; set offline on 47 recorded harsh flights (docs/navigation.md), where 4× weaker
+# or stronger changed nothing
+DRIFT_SLOPE_PRIOR_M_S_PER_RAD: Final = 3.5 * 180.0 / math.pi
 
 
 @dataclass(frozen=True)
@@ -118,31 +125,57 @@ class _Source:
 @dataclass
 class PitotUnderRead:
     """The one-sided CUSUM on the pitot's under-read against the ports (module docstring). Feed the pitot's
-    airspeed less the ports' with :meth:`observe`; :attr:`alarm` says the pitot reads low."""
+    airspeed less the ports' with :meth:`observe`; :attr:`alarm` says the pitot reads low.
+
+    The healthy difference is a line in the ports' α, not one bias: the ports' airspeed error depends on the
+    flight condition (on the harsh fleet up to ~1.9 m/s low at 13 m/s and α ≈ 4°, ~0.1 m/s at 22 m/s), and a
+    bias learnt in one condition took a speed change, or a payload dropped, for a pitot starting to read low.
+    The line is a least-squares fit with exponential forgetting (the bias's time constant; with α constant it
+    is exactly that running mean) and a weak prior of a flat line, so it is defined before α has varied."""
 
     k_m_s: float = DRIFT_K_M_S
     h_m: float = DRIFT_H_M
     bias_tau_s: float = DRIFT_BIAS_TAU_S
     smooth_tau_s: float = TAU_S
     warmup_s: float = DRIFT_WARMUP_S
-    bias_m_s: float = 0.0
+    slope_prior_m_s_per_rad: float = DRIFT_SLOPE_PRIOR_M_S_PER_RAD
     residual_m_s: float = 0.0  # smoothed, less the bias; negative: the pitot reads low
     cusum_m: float = 0.0
     first_t_s: float | None = None
     last_t_s: float | None = None
+    alpha_rad: float = 0.0  # the latest α the line was evaluated at
+    # the forgetting least squares in (1, α): normal matrix and right-hand side, the prior on the slope apart
+    _ata: F64Array = field(default_factory=lambda: np.zeros((2, 2)))
+    _atb: F64Array = field(default_factory=lambda: np.zeros(2))
 
     @property
     def alarm(self) -> bool:
         return self.cusum_m > self.h_m
 
-    def observe(self, t_s: float, difference_m_s: float, *, learn: bool = True) -> None:
-        """The pitot's airspeed less the ports' [m/s] at ``t_s``; ``learn``: both are fused, so a healthy
-        difference may move the bias."""
+    def bias_at(self, alpha_rad: float) -> float:
+        """The healthy difference [m/s] at ``alpha_rad``."""
+        prior = np.diag([0.0, self.slope_prior_m_s_per_rad**-2])
+        intercept, slope = np.linalg.solve(self._ata + prior, self._atb)
+        return float(intercept + slope * alpha_rad)
+
+    @property
+    def bias_m_s(self) -> float:
+        """The healthy difference [m/s] at the latest α."""
+        return self.bias_at(self.alpha_rad)
+
+    def observe(self, t_s: float, difference_m_s: float, *, alpha_rad: float = math.nan,
+                learn: bool = True) -> None:  # fmt: skip
+        """The pitot's airspeed less the ports' [m/s] at ``t_s``, with the ports' ``alpha_rad`` (NaN: as
+        before); ``learn``: both are fused, so a healthy difference may move the line."""
         if not math.isfinite(difference_m_s):
             return
+        if math.isfinite(alpha_rad):
+            self.alpha_rad = alpha_rad
+        x = np.array([1.0, self.alpha_rad])
         if self.first_t_s is None or self.last_t_s is None:
             self.first_t_s = self.last_t_s = t_s
-            self.bias_m_s, self.residual_m_s, self.cusum_m = difference_m_s, 0.0, 0.0
+            self._ata, self._atb = np.outer(x, x), difference_m_s * x
+            self.residual_m_s, self.cusum_m = 0.0, 0.0
             return
         dt = max(t_s - self.last_t_s, 0.0)
         self.last_t_s = t_s
@@ -150,13 +183,14 @@ class PitotUnderRead:
         a = math.exp(-dt / self.smooth_tau_s)
         self.residual_m_s = a * self.residual_m_s + (1.0 - a) * (difference_m_s - self.bias_m_s)
         if age < self.warmup_s:
-            self.cusum_m = 0.0  # the bias is still a short average
+            self.cusum_m = 0.0  # the line is still a short average
         else:
             # capped: once the pitot reads true again the alarm clears within ~h/k, not after as long as it lasted
             self.cusum_m = min(max(0.0, self.cusum_m + (-self.residual_m_s - self.k_m_s) * dt), 2.0 * self.h_m)
-        if learn and self.cusum_m < 0.25 * self.h_m:  # a growing under-read must not teach the bias
+        if learn and self.cusum_m < 0.25 * self.h_m:  # a growing under-read must not teach the line
             b = math.exp(-dt / min(self.bias_tau_s, max(age, dt)))  # a running mean until the time constant
-            self.bias_m_s = b * self.bias_m_s + (1.0 - b) * difference_m_s
+            self._ata = b * self._ata + (1.0 - b) * np.outer(x, x)
+            self._atb = b * self._atb + (1.0 - b) * difference_m_s * x
 
     def restart(self) -> None:
         """After the pitot's exclusion: the sum starts again (the bias is kept: it is the healthy pair's)."""
@@ -199,12 +233,13 @@ class AirDataFdi:
         st.last_t_s = t_s
 
     def observe_pair(self, t_s: float, difference_m_s: float, sigma_m_s: float,
-                     airspeed_m_s: float | None = None) -> None:  # fmt: skip
+                     airspeed_m_s: float | None = None, alpha_rad: float = math.nan) -> None:  # fmt: skip
         """The pitot's airspeed less the ports' [m/s] at ``t_s``, with the σ of that difference; with the
-        pitot's ``airspeed_m_s`` in its useful range, also the under-read test."""
+        pitot's ``airspeed_m_s`` in its useful range, also the under-read test (at the ports' ``alpha_rad``)."""
         self._smooth(self.pair, t_s, (difference_m_s / sigma_m_s) ** 2)
         if airspeed_m_s is not None and airspeed_m_s >= DRIFT_MIN_AIRSPEED_M_S:
-            self.under_read.observe(t_s, difference_m_s, learn=self.fused("pitot") and self.fused("ports"))
+            self.under_read.observe(t_s, difference_m_s, alpha_rad=alpha_rad,
+                                    learn=self.fused("pitot") and self.fused("ports"))  # fmt: skip
 
     def _pair_known(self, t_s: float) -> bool:
         both = self.fused("pitot") and self.fused("ports")
