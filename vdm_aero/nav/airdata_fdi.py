@@ -19,9 +19,10 @@ constant of :data:`TAU_S`; a healthy, consistent source stays near 1.
   pitot's Δp, and grow from nothing. The pair's level above is scaled by the σ the filter assumes (2.4–2.8 m/s,
   conservative) and needs ~4.5 m/s; a pitot icing over tens of seconds under-reads by only 0.3–5 m/s 10 s in.
   So the pair also runs a one-sided CUSUM (Page 1954; Basseville & Nikiforov 1993, §2.2) on the pitot's
-  under-read against the ports, in m/s: its healthy bias (each airframe's pitot and ports see sideslip,
-  propwash and load differently: −1.5 … +0.7 m/s on the harsh fleet) learnt over :data:`DRIFT_BIAS_TAU_S`
-  while the pair agrees, the residual smoothed over :data:`TAU_S`, the excess over :data:`DRIFT_K_M_S`
+  under-read against the ports, in m/s: its healthy difference (each airframe's pitot and ports see sideslip,
+  propwash and load differently: −1.5 … +0.7 m/s at cruise on the harsh fleet, and the ports' airspeed error
+  grows with α) learnt as a line in the ports' α over :data:`DRIFT_BIAS_TAU_S` while the pair agrees, the
+  residual smoothed over :data:`TAU_S`, the excess over :data:`DRIFT_K_M_S`
   accumulated until it passes :data:`DRIFT_H_M`. Its alarm excludes the pitot: the ports' airspeed is a
   least-squares solve over twelve ports whose own residuals and per-port health the front end checks, the
   pitot has no check of its own. It is one-sided because the pitot's failures read low; the healthy
@@ -35,10 +36,10 @@ constant of :data:`TAU_S`; a healthy, consistent source stays near 1.
 What this cannot do: tell a source that is wrong from a state that is wrong when only one source is left;
 see a pitot under-read smaller than the healthy pair's own disagreement (~1 m/s); or, without the ports'
 airspeed, see a fault that grows slower than the state follows it (a slowly icing pitot pulls a live wind
-with it). Nor tell a pitot that starts to read low from a flight condition its bias was not learnt in: the
-ports' airspeed error depends on α (on the harsh fleet up to ~1.9 m/s low at 13 m/s), so speeding up after
-a minute of slow flight, or a payload dropped, excludes a healthy pitot (docs/navigation.md, "The scenarios
-the 20-seed runs had left out").
+with it). Nor tell a pitot that starts to read low from a change of the flight the line in α does not
+explain: a payload dropped (less throttle, another pressure pattern at the same α) still excluded a healthy
+pitot on 1 of 20 flights, and speed changes in manoeuvring flight on 3 of 20 (docs/navigation.md, "The
+scenarios the 20-seed runs had left out").
 """
 
 from __future__ import annotations
