@@ -154,7 +154,9 @@ class PitotUnderRead:
         return self.cusum_m > self.h_m
 
     def bias_at(self, alpha_rad: float) -> float:
-        """The healthy difference [m/s] at ``alpha_rad``."""
+        """The healthy difference [m/s] at ``alpha_rad`` (0 before the first observation)."""
+        if self.first_t_s is None:
+            return 0.0
         prior = np.diag([0.0, self.slope_prior_m_s_per_rad**-2])
         intercept, slope = np.linalg.solve(self._ata + prior, self._atb)
         return float(intercept + slope * alpha_rad)
