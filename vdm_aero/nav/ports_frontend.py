@@ -45,24 +45,38 @@ class QuietPorts:
     the transducers' noise (:data:`ACTIVE_NOISE_RATIO`), no longer sees the flow; it is back once above
     :data:`BACK_SHARE` for :data:`BACK_S`.
 
+    A port's share depends on the flow it sees, so it is learnt, and judged, per band of the air data's α
+    (:data:`BAND_DEG`): a port near the zero of its Cp(α) breathes little in slow flight at high α and much in
+    cruise. A band first flown starts from the nearest learnt band's shares and gives no verdict on a port until
+    it has learnt that port there for :data:`BAND_LEARNT_S`. Nor is anything judged while α itself moves more
+    than :data:`MANOEUVRE_RATIO` times its usual activity (learnt the same way): a pitch manoeuvre drives the ports
+    most sensitive to α, and those least sensitive fall to a small share of the common activity with nothing
+    wrong with them. A blocked line waits for the next steady flight in a learnt band to be called quiet.
+
     Set on the harsh world's survey (4 flights of 535 s, 4 airframes, light and moderate turbulence, each flown
     healthy and with 1–3 ports blocked, 2026-11-27): healthy ports went as low as 0.05–0.1 of their share (three
     ports together for ~2 s in one light-turbulence flight: some manoeuvres move some ports little), blocked ones
     fell under 0.05 within 5.9–8.3 s of the blocking and stayed there (``docs/navigation.md``, "A blocked port
     group"). A port left out for a few seconds costs the solve one row of twelve; a blocked one kept in bends it.
-    The share is learnt in the condition the aircraft flies: in slow flight at high α some ports' share falls
-    under the threshold and healthy ports are called quiet (40 times in 2.76 h of the benchmark's manoeuvring
-    flights, none in 21 h of survey and return flight).
+    With one share for every condition, healthy ports were called quiet 40 times in 2.76 h of the benchmark's
+    manoeuvring flights (none in 21 h of survey and return flight); the bands and the manoeuvre hold were set on
+    recordings of those flights (``docs/navigation.md``, "Quiet ports in a manoeuvre").
     """
 
     CHANGE_S = 0.1
     ACTIVITY_TAU_S = 2.0
-    SHARE_TAU_S = 60.0  # the share's learning (log-averaged)
+    SHARE_TAU_S = 60.0  # the share's learning (log-averaged), and the α activity's
     WARMUP_S = 60.0  # of active flow before any verdict
     QUIET_SHARE = 0.05  # under the lowest healthy share seen (0.05–0.1)
     BACK_SHARE = 0.2
     BACK_S = 5.0
     ACTIVE_NOISE_RATIO = 100.0  # the common activity over the change's noise variance, 2σ_n²
+    BAND_DEG = 2.0  # of the air data's α, for the learnt shares
+    BAND_LO_DEG = -6.0  # the lowest band's lower edge; α outside the bands counts in the edge band
+    N_BANDS = 14
+    BAND_LEARNT_S = 60.0  # of a port's learning in a band before a verdict on it there
+    MANOEUVRE_RATIO = 3.0  # α's activity over its usual level: a manoeuvre, no verdict
+    MANOEUVRE_LEARN_S = 300.0  # the usual level's learning above that ratio
 
     def __init__(self, n_ports: int, noise_pa: float) -> None:
         self.noise_var_pa2 = 2.0 * noise_pa**2  # of a difference of two noisy readings
@@ -70,44 +84,56 @@ class QuietPorts:
         self._prev: F64Array | None = None
         self._t_prev = math.nan
         self._activity = np.full(n_ports, math.nan)
-        self._log_share = np.full(n_ports, math.nan)
+        self._log_share = np.full((self.N_BANDS, n_ports), math.nan)  # per α band
+        self._learnt_s = np.zeros((self.N_BANDS, n_ports))
         self._active_s = 0.0
         self._back_since = np.full(n_ports, math.nan)
+        self._alpha_prev = math.nan
+        self._alpha_activity = math.nan
+        self._log_alpha_activity = math.nan  # its usual level
 
-    def observe(self, t_s: float, dp_pa: F64Array) -> None:
-        """One frame at ``t_s`` [s] (NaN: a missing reading)."""
+    def observe(self, t_s: float, dp_pa: F64Array, alpha_rad: float) -> None:
+        """One frame at ``t_s`` [s] (NaN: a missing reading), with the latest air data's α [rad] (NaN: none,
+        and no verdict)."""
         prev, t_prev = self._prev, self._t_prev
         if prev is not None and len(prev) == len(dp_pa) and 0.0 <= t_s - t_prev < self.CHANGE_S:
             return  # the next change is taken CHANGE_S after this one's start
         self._prev, self._t_prev = dp_pa.copy(), t_s
         if prev is None or len(prev) != len(dp_pa) or not t_s > t_prev:
+            self._alpha_prev = alpha_rad
             return
         dt = t_s - t_prev
+        a = min(dt / self.ACTIVITY_TAU_S, 1.0)
+        steady = self._alpha_steady(alpha_rad, dt, a)
         d2 = (dp_pa - prev) ** 2
         fresh = np.isfinite(d2)
-        a = min(dt / self.ACTIVITY_TAU_S, 1.0)
         act = self._activity
         act[fresh & np.isnan(act)] = d2[fresh & np.isnan(act)]
         self._activity = act = np.where(fresh, act + a * (d2 - act), act)
         common = float(np.nanmedian(act)) if np.isfinite(act).any() else math.nan
-        if not common > self.ACTIVE_NOISE_RATIO * self.noise_var_pa2:
-            return  # calm flow (or none): no port can be told from a blocked one
+        if not common > self.ACTIVE_NOISE_RATIO * self.noise_var_pa2 or not math.isfinite(alpha_rad):
+            return  # calm flow (or none), or no air data: no port can be told from a blocked one
         self._active_s += dt
+        band = int(np.clip((math.degrees(alpha_rad) - self.BAND_LO_DEG) // self.BAND_DEG, 0, self.N_BANDS - 1))
         share = act / common
         ok_share = fresh & (share > 0.0)
         log_share = np.log(np.where(ok_share, share, 1.0))
-        ls = self._log_share
+        ls = self._band_log_share(band)
         learn = ok_share & ~self.quiet
-        ls[learn & np.isnan(ls)] = log_share[learn & np.isnan(ls)]
+        first = learn & np.isnan(ls)
+        ls[first] = log_share[first]
         if self._active_s < self.WARMUP_S:  # the warm-up's plain mean, then a moving one
             w = dt / self._active_s
-            self._log_share = np.where(learn, ls + w * (log_share - ls), ls)
+            self._log_share[band] = np.where(learn, ls + w * (log_share - ls), ls)
+            self._learnt_s[band] += np.where(learn, dt, 0.0)
             return
-        rel = np.where(ok_share, share / np.exp(ls), 0.0)
+        rel = np.where(ok_share & np.isfinite(ls), share / np.exp(np.nan_to_num(ls)), 0.0)
         # a port under its own share teaches nothing: a slow blockage must not become its new normal
         learn &= rel > self.BACK_SHARE
-        self._log_share = np.where(learn, ls + min(dt / self.SHARE_TAU_S, 1.0) * (log_share - ls), ls)
-        newly = fresh & ~self.quiet & (rel < self.QUIET_SHARE)
+        self._log_share[band] = np.where(learn, ls + min(dt / self.SHARE_TAU_S, 1.0) * (log_share - ls), ls)
+        self._learnt_s[band] += np.where(learn, dt, 0.0)
+        judged = steady & (self._learnt_s[band] >= self.BAND_LEARNT_S)
+        newly = fresh & ~self.quiet & judged & (rel < self.QUIET_SHARE)
         self.quiet |= newly
         self._back_since[newly] = math.nan
         for i in np.flatnonzero(self.quiet & ~newly):
@@ -117,6 +143,36 @@ class QuietPorts:
                 self._back_since[i] = t_s
             elif t_s - self._back_since[i] >= self.BACK_S:
                 self.quiet[i] = False
+
+    def _alpha_steady(self, alpha_rad: float, dt: float, a: float) -> bool:
+        """Update α's activity with this change; False while it is above :data:`MANOEUVRE_RATIO` times its
+        usual level, or unknown."""
+        d2 = (alpha_rad - self._alpha_prev) ** 2
+        self._alpha_prev = alpha_rad
+        if not math.isfinite(d2):
+            return False
+        act = self._alpha_activity = d2 if math.isnan(self._alpha_activity) else self._alpha_activity + a * (
+            d2 - self._alpha_activity)  # fmt: skip
+        if not act > 0.0:
+            return False
+        log_act, usual = math.log(act), self._log_alpha_activity
+        if math.isnan(usual):
+            self._log_alpha_activity = log_act
+            return False
+        steady = log_act - usual <= math.log(self.MANOEUVRE_RATIO)
+        # a manoeuvre's seconds barely teach it; lasting stronger turbulence becomes the usual within minutes
+        tau_s = self.SHARE_TAU_S if steady else self.MANOEUVRE_LEARN_S
+        self._log_alpha_activity = usual + min(dt / tau_s, 1.0) * (log_act - usual)
+        return steady
+
+    def _band_log_share(self, band: int) -> F64Array:
+        """The band's learnt log shares (a view), a port never learnt there starting from the nearest band's."""
+        ls = self._log_share[band]
+        for i in np.flatnonzero(np.isnan(ls)):
+            known = np.flatnonzero(np.isfinite(self._log_share[:, i]))
+            if len(known):
+                ls[i] = self._log_share[known[np.argmin(np.abs(known - band))], i]
+        return ls
 
 
 @dataclass(frozen=True)
@@ -192,7 +248,7 @@ class PortFrontEnd:
         qc = self.quiet_check
         if math.isfinite(t_s) and len(qc.quiet) == len(dp):
             was = qc.quiet.copy()
-            qc.observe(t_s, np.where(in_range, dp, np.nan))
+            qc.observe(t_s, np.where(in_range, dp, np.nan), self._start[1] if self._start else math.nan)
             self.events += [(t_s, int(i), "quiet") for i in np.flatnonzero(qc.quiet & ~was)]
             self.events += [(t_s, int(i), "breathing again") for i in np.flatnonzero(was & ~qc.quiet)]
         quiet = qc.quiet if len(qc.quiet) == len(dp) else np.zeros(len(dp), dtype=bool)
