@@ -23,7 +23,9 @@ constant of :data:`TAU_S`; a healthy, consistent source stays near 1.
   propwash and load differently: −1.5 … +0.7 m/s at cruise on the harsh fleet, and the ports' airspeed error
   grows with α) learnt as a line in the ports' α over :data:`DRIFT_BIAS_TAU_S` while the pair agrees, the
   residual smoothed over :data:`TAU_S`, the excess over :data:`DRIFT_K_M_S`
-  accumulated until it passes :data:`DRIFT_H_M`. Its alarm excludes the pitot: the ports' airspeed is a
+  accumulated until it passes :data:`DRIFT_H_M`. The line belongs to the ports' solve from one set of usable
+  ports: another set (ports left out) solves another airspeed, so a new set starts a new line
+  (:data:`DRIFT_RELEARN_S`). Its alarm excludes the pitot: the ports' airspeed is a
   least-squares solve over twelve ports whose own residuals and per-port health the front end checks, the
   pitot has no check of its own. It is one-sided because the pitot's failures read low; the healthy
   disagreement's excursions in manoeuvres go both ways (docs/navigation.md has the figures).
@@ -60,12 +62,14 @@ __all__ = [
     "DRIFT_H_M",
     "DRIFT_K_M_S",
     "DRIFT_MIN_AIRSPEED_M_S",
+    "DRIFT_RELEARN_S",
     "DRIFT_SLOPE_PRIOR_M_S_PER_RAD",
     "DRIFT_WARMUP_S",
     "PAIR_DETECT",
     "PAIR_MAX_AGE_S",
     "READMIT",
     "READMIT_HOLD_S",
+    "RELEARN_AFTER_S",
     "SOURCES",
     "TAU_S",
     "WIND_CHANGE_GUST_SIGMAS",
@@ -99,6 +103,10 @@ DRIFT_H_M: Final = 0.8  # [m/s · s]
 DRIFT_BIAS_TAU_S: Final = 60.0  # the pair's healthy bias: long against a manoeuvre, short against a flight
 DRIFT_WARMUP_S: Final = 120.0  # of airborne pair readings before the bias is trusted (two bias time constants)
 DRIFT_MIN_AIRSPEED_M_S: Final = 8.0  # the pitot's useful range (the filter fuses it from there)
+# A new set of usable ports: its line is a running mean of this long before the test judges again (ten smoothing
+# time constants: the mean of ~200 readings); a set must last RELEARN_AFTER_S to count (one lost frame does not)
+DRIFT_RELEARN_S: Final = 20.0
+RELEARN_AFTER_S: Final = 1.0
 # the healthy difference's slope in the ports' α: a weak prior of none (3.5 m/s per degree, 1σ), so the line is
 # defined before α has varied; set offline on 47 recorded harsh flights (docs/navigation.md), where 4× weaker
 # or stronger changed nothing
@@ -199,6 +207,11 @@ class PitotUnderRead:
         """After the pitot's exclusion: the sum starts again (the bias is kept: it is the healthy pair's)."""
         self.cusum_m = 0.0
 
+    def relearn(self) -> None:
+        """Another set of ports: a new line from the next reading, judged after :data:`DRIFT_RELEARN_S`."""
+        self.first_t_s = self.last_t_s = None
+        self.warmup_s = min(self.warmup_s, DRIFT_RELEARN_S)
+
 
 @dataclass
 class AirDataFdi:
@@ -216,6 +229,8 @@ class AirDataFdi:
     events: list[FdiEvent] = field(default_factory=list)
     last_wind_event_s: float = -math.inf
     last_exclusion_s: float = -math.inf
+    _line_port_set: bytes | None = None  # the ports' set the under-read line was learnt on
+    _port_set_since_s: float | None = None  # another set's first reading
 
     def fused(self, source: str) -> bool:
         """Whether ``source`` may be fused now."""
@@ -236,13 +251,30 @@ class AirDataFdi:
         st.last_t_s = t_s
 
     def observe_pair(self, t_s: float, difference_m_s: float, sigma_m_s: float,
-                     airspeed_m_s: float | None = None, alpha_rad: float = math.nan) -> None:  # fmt: skip
+                     airspeed_m_s: float | None = None, alpha_rad: float = math.nan,
+                     port_set: bytes | None = None) -> None:  # fmt: skip
         """The pitot's airspeed less the ports' [m/s] at ``t_s``, with the σ of that difference; with the
-        pitot's ``airspeed_m_s`` in its useful range, also the under-read test (at the ports' ``alpha_rad``)."""
+        pitot's ``airspeed_m_s`` in its useful range, also the under-read test (at the ports' ``alpha_rad``),
+        whose line belongs to the ports' solve from ``port_set`` (any hashable mark of the usable ports)."""
         self._smooth(self.pair, t_s, (difference_m_s / sigma_m_s) ** 2)
-        if airspeed_m_s is not None and airspeed_m_s >= DRIFT_MIN_AIRSPEED_M_S:
-            self.under_read.observe(t_s, difference_m_s, alpha_rad=alpha_rad,
-                                    learn=self.fused("pitot") and self.fused("ports"))  # fmt: skip
+        if airspeed_m_s is None or airspeed_m_s < DRIFT_MIN_AIRSPEED_M_S:
+            return
+        both = self.fused("pitot") and self.fused("ports")
+        if port_set is not None and port_set != self._line_port_set:
+            # another set of ports solves another airspeed: on the harsh fleet two ports left out moved it by up
+            # to 4 m/s, which the line learnt on the old set takes for a pitot reading low. A set that lasts
+            # RELEARN_AFTER_S starts a new line (while the pitot is trusted: an excluded one keeps its alarm)
+            if self._line_port_set is None:
+                self._line_port_set = port_set
+            else:
+                self._port_set_since_s = t_s if self._port_set_since_s is None else self._port_set_since_s
+                if t_s - self._port_set_since_s < RELEARN_AFTER_S or not both:
+                    return  # neither learnt nor judged on a passing set
+                self.under_read.relearn()
+                self._line_port_set, self._port_set_since_s = port_set, None
+        else:
+            self._port_set_since_s = None
+        self.under_read.observe(t_s, difference_m_s, alpha_rad=alpha_rad, learn=both)
 
     def _pair_known(self, t_s: float) -> bool:
         both = self.fused("pitot") and self.fused("ports")
