@@ -10,7 +10,7 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from vdm_aero.nav.airdata_fdi import DETECT, READMIT_HOLD_S, TAU_S, AirDataFdi
+from vdm_aero.nav.airdata_fdi import DETECT, DRIFT_WARMUP_S, READMIT_HOLD_S, TAU_S, AirDataFdi
 
 RATE_HZ = 10.0
 
@@ -356,3 +356,25 @@ def test_a_new_set_of_ports_starts_a_new_line_instead_of_excluding_the_pitot() -
     ev = fly(fdi, 400.0, 520.0, lambda t: 0.7 - 3.5 - (2.0 if t >= 500.0 else 0.0), lambda t: ten)
     assert [(s, w) for s, w, _ in ev] == [("pitot", "excluded")]
     assert 500.0 < ev[0][2] < 510.0
+
+
+def test_an_iced_pitot_excluded_before_the_ports_change_is_readmitted_once_it_reads_true() -> None:
+    """A pitot excluded for reading low, then a port set that changes (a port left out, no airspeed step): the
+    excluded pitot is judged on its old line, so once the ice sheds it is back, and the new set's line starts
+    then. Neither a lock-out nor a line learnt from the fault."""
+    rng = np.random.default_rng(10)
+    full = np.ones(12, dtype=bool).tobytes()
+    eleven = np.r_[np.zeros(1, dtype=bool), np.ones(11, dtype=bool)].tobytes()
+    fdi = AirDataFdi()
+    events = []
+    for k in range(round(500.0 * RATE_HZ)):
+        t = k / RATE_HZ
+        iced = 3.0 if 200.0 <= t < 320.0 else 0.0
+        fdi.observe_pair(t, 0.7 - iced + 0.3 * rng.standard_normal(), 2.6, 20.0, 0.05, full if t < 250.0 else eleven)
+        for s in ("pitot", "ports", "force"):
+            e = fdi.observe(s, t, 0.2, 1)
+            if e is not None:
+                events.append((e.source, e.what, e.t_s))
+    assert [(s, w) for s, w, _ in events] == [("pitot", "excluded"), ("pitot", "readmitted")]
+    assert 200.0 < events[0][2] < 210.0 and 320.0 < events[1][2] < 340.0
+    assert fdi.under_read.warmup_s < DRIFT_WARMUP_S  # the new set's line was started once the pitot was back

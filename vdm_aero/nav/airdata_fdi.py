@@ -262,16 +262,18 @@ class AirDataFdi:
         both = self.fused("pitot") and self.fused("ports")
         if port_set is not None and port_set != self._line_port_set:
             # another set of ports solves another airspeed: on the harsh fleet two ports left out moved it by up
-            # to 4 m/s, which the line learnt on the old set takes for a pitot reading low. A set that lasts
-            # RELEARN_AFTER_S starts a new line (while the pitot is trusted: an excluded one keeps its alarm)
+            # to 3 m/s, which the line learnt on the old set takes for a pitot reading low. A set that lasts
+            # RELEARN_AFTER_S starts a new line while both are fused; an excluded pitot is judged on the old line
+            # as before (a new line would learn its fault), and the new one starts once it is back
             if self._line_port_set is None:
                 self._line_port_set = port_set
             else:
                 self._port_set_since_s = t_s if self._port_set_since_s is None else self._port_set_since_s
-                if t_s - self._port_set_since_s < RELEARN_AFTER_S or not both:
+                if t_s - self._port_set_since_s < RELEARN_AFTER_S:
                     return  # neither learnt nor judged on a passing set
-                self.under_read.relearn()
-                self._line_port_set, self._port_set_since_s = port_set, None
+                if both:
+                    self.under_read.relearn()
+                    self._line_port_set, self._port_set_since_s = port_set, None
         else:
             self._port_set_since_s = None
         self.under_read.observe(t_s, difference_m_s, alpha_rad=alpha_rad, learn=both)
