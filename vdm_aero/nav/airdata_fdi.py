@@ -10,10 +10,11 @@ constant of :data:`TAU_S`; a healthy, consistent source stays near 1.
 * **Detect**: a source whose smoothed NIS/dim passes :data:`DETECT` disagrees with the state. Gated-out
   measurements count: a pitot that suddenly reads zero is rejected by the gate every time and seen at once.
 * **Sensor or wind?** The pitot and the ports' airspeed are also compared with each other directly (their
-  difference over its σ, smoothed alike: the *pair*), which no state estimate enters. When the pair
-  disagrees, one of the two is wrong: the one further from the state is excluded. When the pair agrees but
-  both disagree with the state, the state is wrong, not a sensor: the wind has changed (a shear, a
-  gradient crossed in a climb), and the filter relearns it (``wind`` event) instead of excluding anything.
+  difference less its healthy line in α, below, over its σ, smoothed alike: the *pair*), which no state
+  estimate enters. When the pair disagrees, one of the two is wrong: the one further from the state is
+  excluded. When the pair agrees but both disagree with the state, the state is wrong, not a sensor: the
+  wind has changed (a shear, a gradient crossed in a climb), and the filter relearns it (``wind`` event)
+  instead of excluding anything.
   Without the pair (no pitot, or no port air data) the worst source is excluded.
 * **A pitot that reads low, slowly**: icing, a blocked ram inlet, water or a leak in the line all lower the
   pitot's Δp, and grow from nothing. The pair's level above is scaled by the σ the filter assumes (2.4–2.8 m/s,
@@ -255,8 +256,13 @@ class AirDataFdi:
                      port_set: bytes | None = None) -> None:  # fmt: skip
         """The pitot's airspeed less the ports' [m/s] at ``t_s``, with the σ of that difference; with the
         pitot's ``airspeed_m_s`` in its useful range, also the under-read test (at the ports' ``alpha_rad``),
-        whose line belongs to the ports' solve from ``port_set`` (any hashable mark of the usable ports)."""
-        self._smooth(self.pair, t_s, (difference_m_s / sigma_m_s) ** 2)
+        whose line belongs to the ports' solve from ``port_set`` (any hashable mark of the usable ports). The
+        pair's level judges the difference less the under-read test's healthy line at this α: in a slow pull-up
+        the ports' airspeed reads 2–6 m/s under a healthy pitot on the harsh fleet, the line knows it, and the
+        raw difference over σ took it for a fault of one of the two (docs/navigation.md)."""
+        ur = self.under_read
+        line = ur.bias_at(alpha_rad if math.isfinite(alpha_rad) else ur.alpha_rad)
+        self._smooth(self.pair, t_s, ((difference_m_s - line) / sigma_m_s) ** 2)
         if airspeed_m_s is None or airspeed_m_s < DRIFT_MIN_AIRSPEED_M_S:
             return
         both = self.fused("pitot") and self.fused("ports")
