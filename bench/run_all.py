@@ -7,6 +7,7 @@ whether the bar was met, so regressions are visible without making CI flaky.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import statistics
 import time
@@ -187,7 +188,7 @@ def bench_service(repeats: int) -> dict[str, Any]:
     import subprocess
     import sys
 
-    from bench.baseline import REPO, baseline_checkout
+    from bench.baseline import REPO, baseline_checkout, run_python
     from vdm_aero_cli.nav_bench import build_artifacts
     from vdm_aero_cli.service_sitl import ServiceRun, run_service_sitl, site_mag_field_ut
 
@@ -220,12 +221,26 @@ def bench_service(repeats: int) -> dict[str, Any]:
                     "latency_max_ms": svc["latency_ms"]["max"], "frames": svc["port_frames"],
                     "imu_msgs": svc["received"].get("RAW_IMU", 0), "cpu_pct_one_core": res["service_cpu_pct"],
                     "peak_rss_mb": res["service_peak_rss_mb"], "wall_s": res["wall_s"]})  # fmt: skip
+    # the same link replayed offline (bench/service_work_probe.py): the service's own work, and the work with the
+    # link's wake-ups, from the first pinned run of each version (its recorded tlog and its own config)
+    probe = str(REPO / "bench" / "service_work_probe.py")
+    work: dict[str, dict[str, Any]] = {}
+    for name, tree in trees.items():
+        run_dir = str(Path(f"out/bench/service/core-{name}-0").resolve())
+        go = functools.partial(run_python, tree or REPO)
+        back_to_back = [json.loads(go([probe, run_dir, "--seconds", "60"])) for _ in range(3)]
+        paced = json.loads(go([probe, run_dir, "--seconds", "60", "--paced"]))
+        work[name] = {"work_cpu_pct": statistics.median(r["cpu_pct_one_core"] for r in back_to_back),
+                      "paced_cpu_pct": paced["cpu_pct_one_core"], "wake_ups_per_s": round(
+                          paced["wake_ups"] / paced["flight_s"], 1), "messages_per_s": round(
+                          paced["messages"] / paced["flight_s"], 1),
+                      "empty_wake_up_cpu_us": paced["empty_wake_up_cpu_us"]}  # fmt: skip
     keys = ("latency_p99_ms", "cpu_pct_one_core", "peak_rss_mb")
     median = {s: {n: {k: statistics.median(r[k] for r in rs) for k in keys} for n, rs in by.items()}
               for s, by in runs.items()}  # fmt: skip
     bars = {"latency_p99_ms": 1.0, "cpu_pct_one_core": 3.0, "peak_rss_mb": round(1.3 * floor, 1)}
     after = median["one core"]["after"]
-    return {"runs": runs, "median": median, "floor_rss_mb": round(floor, 1), "pi4": ratio,
+    return {"runs": runs, "median": median, "offline_work": work, "floor_rss_mb": round(floor, 1), "pi4": ratio,
             "pi4_core_pct_of_this_core": round(pi_core_pct, 1), "quota_skipped": no_quota, "bars": bars,
             "meets_bar": {k: after[k] <= b for k, b in bars.items()}}  # fmt: skip
 
