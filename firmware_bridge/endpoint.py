@@ -197,7 +197,8 @@ class MavEndpoint:
             if size is None:
                 break  # the rest of this frame has not arrived yet
             frame = buf[i : i + size]
-            if size and self._duplicate(frame):  # before decoding: a signed copy is not a forgery
+            key = self._key(frame) if size else (0, 0, 0)
+            if size and self._duplicate(frame, key):  # before decoding: a signed copy is not a forgery
                 self.duplicate_frames += 1
                 self._in_sync = True
                 i += size
@@ -210,8 +211,8 @@ class MavEndpoint:
             self._in_sync = True
             i += size
             if msg is not _REJECTED:
-                self._count_sequence(msg)
-                self._remember(frame)
+                self._count_sequence(key)
+                self._remember(frame, key)
                 out.append(msg)
         del buf[:i]
         if any(map(self._names_the_peer, out)):
@@ -243,13 +244,13 @@ class MavEndpoint:
             return frame[5], frame[6], frame[4]
         return frame[3], frame[4], frame[2]
 
-    def _duplicate(self, frame: bytearray) -> bool:
-        """Whether ``frame`` is a copy of one accepted within :data:`DUPLICATE_WINDOW_S` (module docstring)."""
-        seen = self._recent.get(self._key(frame))
+    def _duplicate(self, frame: bytearray, key: tuple[int, int, int]) -> bool:
+        """Whether ``frame`` (header :meth:`_key`) is a copy of one accepted within :data:`DUPLICATE_WINDOW_S`
+        (module docstring)."""
+        seen = self._recent.get(key)
         return seen is not None and seen[0] == frame and self.received_at - seen[1] <= DUPLICATE_WINDOW_S
 
-    def _remember(self, frame: bytearray) -> None:
-        key = self._key(frame)
+    def _remember(self, frame: bytearray, key: tuple[int, int, int]) -> None:
         self._recent.pop(key, None)  # re-inserted last: the dict stays in arrival order
         self._recent[key] = (bytes(frame), self.received_at)
         if len(self._recent) > DUPLICATE_MEMORY:
@@ -274,9 +275,9 @@ class MavEndpoint:
                 return _REJECTED
             return None
 
-    def _count_sequence(self, msg: MavlinkMessage) -> None:
-        src = (msg.get_srcSystem(), msg.get_srcComponent())
-        seq = msg.get_seq()
+    def _count_sequence(self, key: tuple[int, int, int]) -> None:
+        """Frames lost from a source, from an accepted frame's header (system, component, sequence)."""
+        src, seq = key[:2], key[2]
         last = self._last_seq.get(src)
         self._last_seq[src] = seq
         if last is None or seq == last:

@@ -235,30 +235,33 @@ class PortFrontEnd:
     def health(self, dp_pa: F64Array, t_s: float = math.nan) -> BoolArray:
         """Usable ports of the frame at ``t_s`` [s] (updates the stuck-port counters; the quiet-port check needs
         the time)."""
+        # every frame (100 Hz in the service): NaN compares false, so |Δp| < range and Δp == last hold only for
+        # finite readings without masking them first
         dp = np.asarray(dp_pa, dtype=np.float64)
-        finite = np.isfinite(dp)
-        in_range = finite & (np.abs(np.where(finite, dp, 0.0)) < 0.995 * self.range_pa)
+        in_range = np.abs(dp) < 0.995 * self.range_pa
         if self._last is None or len(self._last) != len(dp):
             self._same = np.zeros(len(dp), dtype=np.int64)
         else:
-            same = finite & (dp == self._last)
-            self._same = np.where(same, self._same + 1, 0)
+            self._same = (self._same + 1) * (dp == self._last)
         self._last = dp.copy()
         stuck = self._same >= self.stuck_frames
         qc = self.quiet_check
         if math.isfinite(t_s) and len(qc.quiet) == len(dp):
             was = qc.quiet.copy()
             qc.observe(t_s, np.where(in_range, dp, np.nan), self._start[1] if self._start else math.nan)
-            self.events += [(t_s, int(i), "quiet") for i in np.flatnonzero(qc.quiet & ~was)]
-            self.events += [(t_s, int(i), "breathing again") for i in np.flatnonzero(was & ~qc.quiet)]
+            if (qc.quiet != was).any():
+                self.events += [(t_s, int(i), "quiet") for i in np.flatnonzero(qc.quiet & ~was)]
+                self.events += [(t_s, int(i), "breathing again") for i in np.flatnonzero(was & ~qc.quiet)]
         quiet = qc.quiet if len(qc.quiet) == len(dp) else np.zeros(len(dp), dtype=bool)
+        usable = in_range & ~stuck
         c = self.counts
         c["frames"] += 1
-        c["nan"] += int((~finite).sum())
-        c["out_of_range"] += int((finite & ~in_range).sum())
-        c["stuck"] += int((in_range & stuck).sum())
-        c["quiet"] += int((in_range & ~stuck & quiet).sum())
-        return np.asarray(in_range & ~stuck & ~quiet)
+        n_finite = int(np.count_nonzero(np.isfinite(dp)))
+        c["nan"] += len(dp) - n_finite
+        c["out_of_range"] += n_finite - int(np.count_nonzero(in_range))
+        c["stuck"] += int(np.count_nonzero(in_range & stuck))
+        c["quiet"] += int(np.count_nonzero(usable & quiet))
+        return np.asarray(usable & ~quiet)
 
     def air_data(
         self, dp_pa: F64Array, rho_kg_m3: float, omega_b: F64Array, controls_rad: F64Array
