@@ -180,7 +180,10 @@ class MavEndpoint:
         When they include a frame of the autopilot (module docstring), the transport is told that their
         sender is the peer (``confirm_peer``: ``udpin`` replies go there from now on)."""
         data = self.transport.recv(timeout_s)
-        self.received_at = time.monotonic()  # before decoding: latency is counted from the bytes' arrival
+        # latency is counted from the bytes' arrival: the kernel's stamp where the link has one (the time they
+        # waited in the socket while the service was busy counts), else now, before decoding
+        arrived = getattr(self.transport, "arrived_at", None)
+        self.received_at = arrived if arrived is not None else time.monotonic()
         if not data:
             return []
         buf = self._rx

@@ -14,13 +14,19 @@ station, a radio's RADIO_STATUS or a stranger sending to the same port never tak
 from :data:`BACKOFF_MIN_S` to :data:`BACKOFF_MAX_S` so a missing autopilot costs no CPU, and resets on
 success. What cannot be sent (no peer yet, a full socket) is dropped and counted: the service's outputs are
 periodic, so the next one replaces a lost one.
+
+A UDP datagram carries the time the kernel received it (``SO_TIMESTAMPNS``): :attr:`UdpTransport.arrived_at` is
+that time on the monotonic clock, so the service's latency counts the time a datagram waited in the socket while
+the service was busy, not only the time from its ``recv``. Stream transports cannot tell (None).
 """
 
 from __future__ import annotations
 
 import contextlib
+import math
 import select
 import socket
+import struct
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -34,6 +40,10 @@ BACKOFF_MIN_S = 0.5
 BACKOFF_MAX_S = 8.0
 RECV_BYTES = 65536
 RECV_QUEUE_MAX = 512  # datagrams read per select: bounded, the socket's own buffer holds the rest
+# Linux's SO_TIMESTAMPNS (asm-generic socket.h, also on ARM): CPython does not export the name
+SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
+_TIMESPEC = struct.Struct("@ll")  # struct timespec: the native long's size (32-bit Raspberry Pi OS too)
+ARRIVAL_MAX_AGE_S = 1.0  # an arrival stamp older than this is a wall-clock step, not a wait: use the recv time
 SCHEMES = ("serial", "udpin", "udpout", "tcp")
 
 
@@ -75,6 +85,11 @@ class Transport(Protocol):
     @property
     def connected(self) -> bool: ...
 
+    @property
+    def arrived_at(self) -> float | None:
+        """The monotonic time [s] the first bytes of the last ``recv`` reached this host, when the link can tell."""
+        ...
+
     def send(self, data: bytes) -> None: ...
 
     def recv(self, timeout_s: float) -> bytes: ...
@@ -113,8 +128,11 @@ class UdpTransport:
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 21)  # bursts of 400 Hz IMU + ports
         self._peer: tuple[str, int] | None = None
-        self._queue: deque[tuple[tuple[str, int], bytes]] = deque()
+        self._queue: deque[tuple[tuple[str, int], bytes, float]] = deque()  # (sender, datagram, arrival [s])
         self.last_sender: tuple[str, int] | None = None
+        self._arrived_at: float | None = None
+        with contextlib.suppress(OSError):  # not Linux: no stamps, the recv time stands for the arrival
+            self._sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
         if url.scheme == "udpin":
             self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
             try:
@@ -146,25 +164,43 @@ class UdpTransport:
 
     def recv(self, timeout_s: float) -> bytes:
         """What arrived, from one sender (``last_sender``): datagrams from others wait for the next call, so
-        the endpoint can tell who sent the frames it accepts (:meth:`confirm_peer`)."""
+        the endpoint can tell who sent the frames it accepts (:meth:`confirm_peer`). :attr:`arrived_at`: the
+        kernel's arrival time of the first of them."""
         if not self._queue:
             readable, _, _ = select.select([self._sock], [], [], max(timeout_s, 0.0))
             if not readable:
                 return b""
             while len(self._queue) < RECV_QUEUE_MAX:
                 try:
-                    data, addr = self._sock.recvfrom(RECV_BYTES)
+                    data, anc, _flags, addr = self._sock.recvmsg(RECV_BYTES, 64)
                 except (BlockingIOError, ConnectionRefusedError):
                     break
-                self._queue.append(((str(addr[0]), int(addr[1])), data))
+                self._queue.append(((str(addr[0]), int(addr[1])), data, self._arrival(anc)))
         if not self._queue:
             return b""
         sender = self._queue[0][0]
+        self._arrived_at = self._queue[0][2]
         chunks = []
         while self._queue and self._queue[0][0] == sender:
             chunks.append(self._queue.popleft()[1])
         self.last_sender = sender
         return b"".join(chunks)
+
+    @property
+    def arrived_at(self) -> float | None:
+        return self._arrived_at
+
+    def _arrival(self, anc: list[tuple[int, int, bytes]]) -> float:
+        """The monotonic time a datagram reached the kernel, from its ``SO_TIMESTAMPNS`` (wall-clock) stamp; the
+        time now when it has none or the wall clock stepped meanwhile."""
+        now = time.monotonic()
+        for level, kind, data in anc:
+            if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(data) >= _TIMESPEC.size:
+                sec, nsec = _TIMESPEC.unpack_from(data)
+                waited = time.time() - (sec + 1e-9 * nsec)
+                if 0.0 <= waited <= ARRIVAL_MAX_AGE_S and math.isfinite(waited):
+                    return now - waited
+        return now
 
     def confirm_peer(self) -> None:
         """The last recv held a frame of the autopilot (the endpoint's rule, :mod:`firmware_bridge.endpoint`:
@@ -192,6 +228,10 @@ class _StreamTransport:
     @property
     def connected(self) -> bool:
         return self._handle is not None
+
+    @property
+    def arrived_at(self) -> float | None:
+        return None  # a byte stream has no arrival stamps: the endpoint takes its recv time
 
     def _open(self) -> Any:  # returns the handle, or raises OSError
         raise NotImplementedError

@@ -51,6 +51,38 @@ def _vehicle_heartbeat(mav: Any) -> Any:
     return mav.heartbeat_encode(mavlink2.MAV_TYPE_FIXED_WING, mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 4)
 
 
+# ------------------------------------------------------------------------------------------- arrival
+def test_a_frame_that_waited_in_the_socket_counts_its_wait() -> None:
+    """The service's latency runs from a frame's arrival at this host: a frame that waited in the socket while
+    the service was busy (here 150 ms) is stamped with the kernel's arrival time, not the time it was read."""
+    from firmware_bridge.transport import open_transport
+
+    link = open_transport("udpin://127.0.0.1:0")
+    ep = MavEndpoint(link, system_id=1, component_id=191, signing=None)
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        mav = _signer(AUTOPILOT)
+        # the kernel turns receive stamping on a moment after the first socket asks (a deferred static key):
+        # until then it stamps a datagram when it is read. The service's socket lives for hours; warm up
+        tx.sendto(_pack(mav, _vehicle_heartbeat(mav)), link.local_address)
+        ep.poll(1.0)
+        time.sleep(0.05)
+        sent_at = time.monotonic()
+        tx.sendto(_pack(mav, _vehicle_heartbeat(mav)), link.local_address)
+        time.sleep(0.15)  # busy elsewhere
+        msgs = ep.poll(1.0)
+        read_at = time.monotonic()
+        assert [m.get_type() for m in msgs] == ["HEARTBEAT"]
+        assert sent_at - 0.005 <= ep.received_at <= sent_at + 0.05 < read_at - 0.1
+        # the next datagram, read at once, is stamped at its own arrival
+        tx.sendto(_pack(mav, _vehicle_heartbeat(mav)), link.local_address)
+        ep.poll(1.0)
+        assert ep.received_at > read_at and time.monotonic() - ep.received_at < 0.05
+    finally:
+        tx.close()
+        link.close()
+
+
 # ------------------------------------------------------------------------------------------- duplicates
 def test_a_duplicating_router_delivers_each_frame_once(monkeypatch: pytest.MonkeyPatch) -> None:
     """300 port values (12 ports, 25 frames: the 8-bit sequence number wraps), each delivered by two routes,
