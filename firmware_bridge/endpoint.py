@@ -45,6 +45,7 @@ stream out; :class:`_Codec` compares the signature first.
 
 from __future__ import annotations
 
+import bisect
 import hashlib
 import re
 import time
@@ -136,7 +137,8 @@ class MavEndpoint:
         self.lost_frames = 0
         self.lost_by_source: dict[tuple[int, int], int] = {}
         self.sent: dict[str, int] = {}
-        self.received_at = 0.0
+        self.received_at = 0.0  # when the first bytes of the last poll arrived (monotonic [s])
+        self.arrived: list[float] = []  # when each message the last poll returned arrived (monotonic [s])
         # (system, component) of the autopilot, set by the endpoint's owner once identified: only its frames
         # name the address replies go to (module docstring)
         self.autopilot: tuple[int, int] | None = None
@@ -180,13 +182,15 @@ class MavEndpoint:
         When they include a frame of the autopilot (module docstring), the transport is told that their
         sender is the peer (``confirm_peer``: ``udpin`` replies go there from now on)."""
         data = self.transport.recv(timeout_s)
-        # latency is counted from the bytes' arrival: the kernel's stamp where the link has one (the time they
-        # waited in the socket while the service was busy counts), else now, before decoding
-        arrived = getattr(self.transport, "arrived_at", None)
-        self.received_at = arrived if arrived is not None else time.monotonic()
+        # latency is counted from the bytes' arrival: the kernel's stamp of each datagram where the link has them
+        # (the time they waited in the socket while the service was busy counts), else now, before decoding
+        marks: list[tuple[int, float]] = getattr(self.transport, "arrivals", None) or []
+        self.received_at = marks[0][1] if marks else time.monotonic()
+        self.arrived = []
         if not data:
             return []
         buf = self._rx
+        base = len(buf)  # bytes of an earlier read still waiting for the rest of their frame
         buf += data
         out = []
         i, n = 0, len(buf)
@@ -217,12 +221,18 @@ class MavEndpoint:
                 self._count_sequence(key)
                 self._remember(frame, key)
                 out.append(msg)
+                self.arrived.append(self._arrival(marks, i - base))
         del buf[:i]
         if any(map(self._names_the_peer, out)):
             confirm: Callable[[], None] | None = getattr(self.transport, "confirm_peer", None)
             if confirm is not None:
                 confirm()
         return out
+
+    def _arrival(self, marks: list[tuple[int, float]], end: int) -> float:
+        """When the datagram holding the frame that ends at byte ``end`` of this read arrived."""
+        k = bisect.bisect_left(marks, end, key=lambda m: m[0])
+        return marks[k][1] if k < len(marks) else self.received_at
 
     def _names_the_peer(self, msg: MavlinkMessage) -> bool:
         """Whether ``msg`` is the autopilot's, so that its sender's address is the one to reply to."""

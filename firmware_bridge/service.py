@@ -322,8 +322,7 @@ class CompanionService:
         try:
             while not should_stop():
                 msgs = self.ep.poll(self.poll_timeout(time.monotonic()))
-                t_in = self.ep.received_at
-                for msg in msgs:
+                for msg, t_in in zip(msgs, self.ep.arrived, strict=True):
                     self._dispatch(msg, t_in)
                 self.ep.autopilot = self.decoder.autopilot  # only its frames name the reply address (udpin)
                 now = time.monotonic()

@@ -15,9 +15,10 @@ from :data:`BACKOFF_MIN_S` to :data:`BACKOFF_MAX_S` so a missing autopilot costs
 success. What cannot be sent (no peer yet, a full socket) is dropped and counted: the service's outputs are
 periodic, so the next one replaces a lost one.
 
-A UDP datagram carries the time the kernel received it (``SO_TIMESTAMPNS``): :attr:`UdpTransport.arrived_at` is
-that time on the monotonic clock, so the service's latency counts the time a datagram waited in the socket while
-the service was busy, not only the time from its ``recv``. Stream transports cannot tell (None).
+A UDP datagram carries the time the kernel received it (``SO_TIMESTAMPNS``): :attr:`UdpTransport.arrivals` gives
+that time on the monotonic clock for each datagram of the last ``recv``, so the service's latency counts the
+time a datagram waited in the socket while the service was busy, not only the time from its ``recv``. Stream
+transports cannot tell (no arrivals).
 """
 
 from __future__ import annotations
@@ -86,8 +87,9 @@ class Transport(Protocol):
     def connected(self) -> bool: ...
 
     @property
-    def arrived_at(self) -> float | None:
-        """The monotonic time [s] the first bytes of the last ``recv`` reached this host, when the link can tell."""
+    def arrivals(self) -> list[tuple[int, float]]:
+        """Per datagram of the last ``recv``: (its end's offset in the bytes returned, the monotonic time [s] it
+        reached this host); empty when the link cannot tell."""
         ...
 
     def send(self, data: bytes) -> None: ...
@@ -130,7 +132,7 @@ class UdpTransport:
         self._peer: tuple[str, int] | None = None
         self._queue: deque[tuple[tuple[str, int], bytes, float]] = deque()  # (sender, datagram, arrival [s])
         self.last_sender: tuple[str, int] | None = None
-        self._arrived_at: float | None = None
+        self._arrivals: list[tuple[int, float]] = []
         with contextlib.suppress(OSError):  # not Linux: no stamps, the recv time stands for the arrival
             self._sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
         if url.scheme == "udpin":
@@ -164,8 +166,8 @@ class UdpTransport:
 
     def recv(self, timeout_s: float) -> bytes:
         """What arrived, from one sender (``last_sender``): datagrams from others wait for the next call, so
-        the endpoint can tell who sent the frames it accepts (:meth:`confirm_peer`). :attr:`arrived_at`: the
-        kernel's arrival time of the first of them."""
+        the endpoint can tell who sent the frames it accepts (:meth:`confirm_peer`). :attr:`arrivals`: where
+        each of them ends, and when the kernel received it."""
         if not self._queue:
             readable, _, _ = select.select([self._sock], [], [], max(timeout_s, 0.0))
             if not readable:
@@ -179,16 +181,18 @@ class UdpTransport:
         if not self._queue:
             return b""
         sender = self._queue[0][0]
-        self._arrived_at = self._queue[0][2]
-        chunks = []
+        chunks, self._arrivals, end = [], [], 0
         while self._queue and self._queue[0][0] == sender:
-            chunks.append(self._queue.popleft()[1])
+            _, data, arrived = self._queue.popleft()
+            chunks.append(data)
+            end += len(data)
+            self._arrivals.append((end, arrived))
         self.last_sender = sender
         return b"".join(chunks)
 
     @property
-    def arrived_at(self) -> float | None:
-        return self._arrived_at
+    def arrivals(self) -> list[tuple[int, float]]:
+        return self._arrivals
 
     def _arrival(self, anc: list[tuple[int, int, bytes]]) -> float:
         """The monotonic time a datagram reached the kernel, from its ``SO_TIMESTAMPNS`` (wall-clock) stamp; the
@@ -230,8 +234,8 @@ class _StreamTransport:
         return self._handle is not None
 
     @property
-    def arrived_at(self) -> float | None:
-        return None  # a byte stream has no arrival stamps: the endpoint takes its recv time
+    def arrivals(self) -> list[tuple[int, float]]:
+        return []  # a byte stream has no arrival stamps: the endpoint takes its recv time
 
     def _open(self) -> Any:  # returns the handle, or raises OSError
         raise NotImplementedError

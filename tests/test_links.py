@@ -74,10 +74,18 @@ def test_a_frame_that_waited_in_the_socket_counts_its_wait() -> None:
         read_at = time.monotonic()
         assert [m.get_type() for m in msgs] == ["HEARTBEAT"]
         assert sent_at - 0.005 <= ep.received_at <= sent_at + 0.05 < read_at - 0.1
-        # the next datagram, read at once, is stamped at its own arrival
+        assert ep.arrived == [ep.received_at]
+        # two datagrams read together: each message is stamped with its own datagram's arrival
         tx.sendto(_pack(mav, _vehicle_heartbeat(mav)), link.local_address)
-        ep.poll(1.0)
-        assert ep.received_at > read_at and time.monotonic() - ep.received_at < 0.05
+        time.sleep(0.1)
+        two = [_pack(mav, mav.named_value_float_encode(1000, f"P0{k}".encode(), 1.0)) for k in range(2)]
+        tx.sendto(b"".join(two), link.local_address)  # two frames in one datagram, as a router may pack them
+        time.sleep(0.05)
+        msgs = ep.poll(1.0)
+        assert [m.get_type() for m in msgs] == ["HEARTBEAT", "NAMED_VALUE_FLOAT", "NAMED_VALUE_FLOAT"]
+        first, second, third = ep.arrived
+        assert ep.received_at == first and 0.09 <= second - first <= 0.15 and third == second
+        assert time.monotonic() - second >= 0.04
     finally:
         tx.close()
         link.close()
