@@ -126,13 +126,19 @@ def _control_terms(alpha: F64Array | float, controls: F64Array) -> tuple[F64Arra
 
 
 # ------------------------------------------------------------------------------------------- FADS
+def _angle_rows(x: float, y: float) -> F64Array:
+    """The cubic in (α, β) of one point and its α and β derivatives as the rows of one (3, 10) array: the FADS
+    solve's hot path takes all three through the port model in one product."""
+    return np.array([[1.0, x, y, x * x, x * y, y * y, x**3, x * x * y, x * y * y, y**3],
+                     [0.0, 1.0, 0.0, 2 * x, y, 0.0, 3 * x * x, 2 * x * y, y * y, 0.0],
+                     [0.0, 0.0, 1.0, 0.0, x, 2 * y, 0.0, x * x, 2 * x * y, 3 * y * y]])  # fmt: skip
+
+
 def _angle_terms(alpha: F64Array | float, beta: F64Array | float) -> tuple[F64Array, F64Array, F64Array]:
     """Cubic polynomial in (α, β): values (..., 10) and their α and β derivatives."""
-    if isinstance(alpha, float) and isinstance(beta, float):  # the FADS solve's hot path: one point, no stacking
-        x, y = alpha, beta
-        return (np.array([1.0, x, y, x * x, x * y, y * y, x**3, x * x * y, x * y * y, y**3]),
-                np.array([0.0, 1.0, 0.0, 2 * x, y, 0.0, 3 * x * x, 2 * x * y, y * y, 0.0]),
-                np.array([0.0, 0.0, 1.0, 0.0, x, 2 * y, 0.0, x * x, 2 * x * y, 3 * y * y]))  # fmt: skip
+    if isinstance(alpha, float) and isinstance(beta, float):  # one point: the rows of :func:`_angle_rows`
+        rows = _angle_rows(alpha, beta)
+        return rows[0], rows[1], rows[2]
     a, b = np.asarray(alpha, dtype=np.float64), np.asarray(beta, dtype=np.float64)
     one, zero = np.ones_like(a), np.zeros_like(a)
     val = np.stack([one, a, b, a * a, a * b, b * b, a**3, a * a * b, a * b * b, b**3], axis=-1)
@@ -215,30 +221,33 @@ class PortPressureModel:
         ctl_fixed = c @ th[13:16] + (c * c) @ th[16:19]
         ctl_alpha = c @ th[19:22]
         cp_rms = self.cp_rms[ok]
+        noise_var = noise_pa**2
         for _ in range(iterations):
             speed = math.sqrt(2.0 * max(q, 1.0) / rho_kg_m3)
-            val, da, db = _angle_terms(a, b)
-            cp = val @ th_angle + rate_per_v / max(speed, 1.0) + ctl_fixed + a * ctl_alpha
-            ca, cb = da @ th_angle + ctl_alpha, db @ th_angle
-            w = 1.0 / (noise_pa**2 + (max(q, 1.0) * cp_rms) ** 2)
-            r = dp - q * cp
-            j = np.stack([cp, q * ca, q * cb], axis=1)  # ∂(q̄·Cp)/∂(q̄, α, β)
-            jw = j * w[:, None]
-            info = j.T @ jw
+            # rows: Cp and its α and β derivatives at the ports, from one product of the angle terms
+            m = _angle_rows(a, b) @ th_angle
+            m[0] += rate_per_v / max(speed, 1.0) + ctl_fixed + a * ctl_alpha
+            m[1] += ctl_alpha
+            w = 1.0 / (noise_var + (max(q, 1.0) * cp_rms) ** 2)
+            r = dp - q * m[0]
+            m[1:] *= q  # ∂(q̄·Cp)/∂(q̄, α, β), one row each
+            jw = m * w
+            info = jw @ m.T
             try:
                 info_inv = np.linalg.inv(info)  # one 3×3 inverse: the step and the convergence test's 1σ
             except np.linalg.LinAlgError:
                 return None
-            step = info_inv @ (jw.T @ r)
-            q, a, b = q + step[0], a + step[1], b + step[2]
+            dq, da, db = (info_inv @ (jw @ r)).tolist()
+            q, a, b = q + dq, a + da, b + db
             if not (q > 1.0 and abs(a) < 0.6 and abs(b) < 0.6):
                 return None
             # converged when the step is 1 % of the solution's own 1σ (the weights depend on q̄: the iteration
             # converges linearly, ~×0.2 a step; the last 1e-4 rad would cost three more iterations for nothing)
-            if np.all(step * step < 1e-4 * np.diag(info_inv)):
+            v_q, v_a, v_b = info_inv.diagonal().tolist()
+            if dq * dq < 1e-4 * v_q and da * da < 1e-4 * v_a and db * db < 1e-4 * v_b:
                 break
         speed = math.sqrt(2.0 * q / rho_kg_m3)
-        cp = _angle_terms(a, b)[0] @ th_angle + rate_per_v / max(speed, 1.0) + ctl_fixed + a * ctl_alpha
+        cp = _angle_rows(a, b)[0] @ th_angle + rate_per_v / max(speed, 1.0) + ctl_fixed + a * ctl_alpha
         r = dp - q * cp
         chi2 = float(np.sum(r * r * w)) / max(n - 3, 1)
         cov_qab = info_inv * max(chi2, 1.0)
