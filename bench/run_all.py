@@ -184,7 +184,11 @@ def bench_service(repeats: int) -> dict[str, Any]:
     service pinned to core 1 and the mock to core 0 (taskset); then both under the CPU quota of one Raspberry
     Pi 4 core, this core's share that does the Pi core's work (bench/pi_ratio.py, a cited Pi figure).
     Bars (issue 25): p99 last port message in → outputs sent ≤ 1 ms, CPU ≤ 3 % of one core, peak RSS ≤ 1.3×
-    the floor (a Python that imports only numpy, onnxruntime, pymavlink and filterpy)."""
+    the floor (a Python that imports only numpy, onnxruntime, pymavlink and filterpy). Today's service counts the
+    latency from the kernel's arrival stamp of the last port message's datagram; the code before counted it from
+    its read, which leaves out the wait in the socket (docs/performance.md). Beside the real-time CPU, the offline
+    replay of each version's recorded link (bench/service_work_probe.py): its own work, and that work paced as
+    the link delivers it."""
     import subprocess
     import sys
 
