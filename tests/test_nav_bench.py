@@ -345,6 +345,27 @@ def test_median_horizontal_error_is_the_hoyt_median() -> None:
     assert nav_bench.median_horizontal_error_m(np.diag([9.0, 0.0])) == pytest.approx(3.0 * 0.67449, rel=0.01)
 
 
+def test_a_consistent_filters_two_sigma_coverage_is_the_2d_one() -> None:
+    # analytic: a round 2-D Gaussian is inside 2σ with 1 − e⁻², a flat one (1-D) with erf(√2)
+    assert nav_bench.two_sigma_coverage_if_consistent(np.eye(2) * 25.0) == pytest.approx(1.0 - math.exp(-2.0), abs=1e-9)
+    assert nav_bench.two_sigma_coverage_if_consistent(np.diag([25.0, 0.0])) == pytest.approx(math.erf(math.sqrt(2.0)),
+                                                                                             abs=1e-3)  # fmt: skip
+    # and the same by sampling an oblique covariance, judged as _metrics judges (major axis)
+    rng = np.random.default_rng(3)
+    cov = np.array([[40.0, 12.0], [12.0, 10.0]])
+    e = rng.multivariate_normal(np.zeros(2), cov, size=200_000)
+    share = np.mean(np.linalg.norm(e, axis=1) <= 2.0 * math.sqrt(np.linalg.eigvalsh(cov)[-1]))
+    assert nav_bench.two_sigma_coverage_if_consistent(cov) == pytest.approx(share, abs=3e-3)
+
+
+def test_how_often_a_share_is_reached_is_the_binomial_tail() -> None:
+    from scipy.stats import binom  # the third-party reference for equal probabilities
+
+    assert nav_bench.share_reached_probability([0.865] * 20, 0.9) == pytest.approx(binom.sf(17, 20, 0.865), rel=1e-9)
+    assert nav_bench.share_reached_probability([1.0, 0.0], 0.5) == pytest.approx(1.0)
+    assert nav_bench.share_reached_probability([1.0, 0.0], 1.0) == pytest.approx(0.0)
+
+
 def test_the_filters_know_only_what_a_user_knows(monkeypatch: pytest.MonkeyPatch, tmp_path: Any) -> None:
     # no inverse crime: the bench hands the filters the WMM value at the site and the IMU part's name, never
     # the world's true field or its installation draws

@@ -475,6 +475,7 @@ def _metrics(rows: list[tuple[Any, ...]], truth: dict[str, F64Array], t0: float,
         "final_error_pct": 100.0 * float(e_h[i_end]) / max(dist, 1e-9),
         "sigma_h_end_m": float(sig_h[i_end]),
         "covered_2sigma": bool(e_h[i_end] <= 2.0 * sig_h[i_end]),
+        "covered_2sigma_if_consistent": two_sigma_coverage_if_consistent(cov[i_end][:2, :2]),
         "nees_in_band": in_band,
         "nees_median": float(np.median(nees)) if len(nees) else math.nan,
         "reacquisition_jump_m": jump,
@@ -625,6 +626,14 @@ def summarise(rows: list[dict[str, Any]], spec: BenchSpec) -> dict[str, Any]:
                 "max_during_median_m": float(np.median([x["max_error_m"] for x in ms])),
                 "pct_distance_median": float(np.median([x["final_error_pct"] for x in ms])),
                 "covered_2sigma": float(np.mean([x["covered_2sigma"] for x in ms])),
+                # what a consistent filter would score with these σ, and how often it would reach the bar's 90 %
+                # (older reports lack the per-run figure: NaN)
+                "covered_2sigma_if_consistent": float(
+                    np.mean([x.get("covered_2sigma_if_consistent", math.nan) for x in ms])
+                ),
+                "coverage_bar_pass_if_consistent": share_reached_probability(
+                    [x.get("covered_2sigma_if_consistent", math.nan) for x in ms], COVERAGE_BAR
+                ),
                 "nees_in_band": float(np.nanmean([x["nees_in_band"] for x in ms])),  # pooled: equal epochs per run
                 "reacquisition_jump_median_m": float(np.nanmedian([x["reacquisition_jump_m"] for x in ms])),
                 "cpu_s_per_flight_s": float(np.median([r["filter_cpu_s_per_flight_s"][key] for r in runs])),
@@ -795,26 +804,53 @@ def free_inertial_along(
     return p[0:2, 0:2]
 
 
-def median_horizontal_error_m(cov_ne: F64Array) -> float:
-    """The median length of a zero-mean 2-D Gaussian error of covariance ``cov_ne`` (2, 2) [m²] (the Hoyt
-    distribution's median). With the error ρ·(√λ₁ cos θ, √λ₂ sin θ), ρ Rayleigh and θ uniform:
-    P(|e| ≤ r) = 1 − mean_θ exp(−r²/2s(θ)²), s² = λ₁cos²θ + λ₂sin²θ; the mean over a periodic grid and the
-    root by bisection."""
+def horizontal_error_cdf(cov_ne: F64Array) -> Callable[[float], float]:
+    """P(|e| ≤ r) for a zero-mean 2-D Gaussian error of covariance ``cov_ne`` (2, 2) [m²], r [m] (the Hoyt
+    distribution). With the error ρ·(√λ₁ cos θ, √λ₂ sin θ), ρ Rayleigh and θ uniform:
+    P(|e| ≤ r) = 1 − mean_θ exp(−r²/2s(θ)²), s² = λ₁cos²θ + λ₂sin²θ, the mean over a periodic grid."""
     lam = np.clip(np.linalg.eigvalsh(cov_ne), 0.0, None)
     th = np.linspace(0.0, 2.0 * math.pi, 720, endpoint=False)
     s2 = lam[0] * np.cos(th) ** 2 + lam[1] * np.sin(th) ** 2
-    if not np.any(s2 > 0.0):
-        return 0.0
 
     def cdf(r: float) -> float:
+        if not np.any(s2 > 0.0):
+            return 1.0
         with np.errstate(divide="ignore"):
             return 1.0 - float(np.mean(np.exp(-(r * r) / (2.0 * s2))))
 
-    lo, hi = 0.0, 10.0 * math.sqrt(float(lam.max()))
+    return cdf
+
+
+def median_horizontal_error_m(cov_ne: F64Array) -> float:
+    """The median length of a zero-mean 2-D Gaussian error of covariance ``cov_ne`` (2, 2) [m²]: the root of
+    :func:`horizontal_error_cdf` by bisection."""
+    lam_max = float(np.clip(np.linalg.eigvalsh(cov_ne), 0.0, None).max())
+    if lam_max <= 0.0:
+        return 0.0
+    cdf = horizontal_error_cdf(cov_ne)
+    lo, hi = 0.0, 10.0 * math.sqrt(lam_max)
     for _ in range(60):
         mid = 0.5 * (lo + hi)
         lo, hi = (mid, hi) if cdf(mid) < 0.5 else (lo, mid)
     return 0.5 * (lo + hi)
+
+
+def two_sigma_coverage_if_consistent(cov_ne: F64Array) -> float:
+    """The probability that the report's test "|e| ≤ 2σ_h" (σ_h the major axis's σ, as :func:`_metrics` takes it)
+    passes for an error drawn from the filter's own covariance ``cov_ne`` [m²]: what a consistent filter
+    scores. A 2-D error is not a 1-D one: 1 − e⁻² = 86.5 % for a round covariance, up to 95.4 % for a flat one."""
+    return horizontal_error_cdf(cov_ne)(2.0 * math.sqrt(float(np.clip(np.linalg.eigvalsh(cov_ne), 0.0, None).max())))
+
+
+def share_reached_probability(p: Sequence[float], share: float) -> float:
+    """The probability that independent trials of success probabilities ``p`` succeed in at least ``share`` of
+    them (the Poisson-binomial distribution, by convolution): how often a consistent filter passes a coverage
+    bar over this many seeds."""
+    dist = np.array([1.0])
+    for pi in p:
+        dist = np.convolve(dist, [1.0 - pi, pi])
+    need = math.ceil(share * len(p) - 1e-9)
+    return float(dist[need:].sum())
 
 
 MEDIAN_RAYLEIGH: Final = math.sqrt(2.0 * math.log(2.0))  # median |e| of a 2-D error of σ per axis, in σ
@@ -852,6 +888,7 @@ _HEADER: Final = (
 
 
 SPEED_BAR_X_REAL_TIME: Final = 50.0
+COVERAGE_BAR: Final = 0.9  # issue 22: 2σ covers the outage-end error in ≥ 90 % of seeds
 
 
 def bars(summary: dict[str, Any], theory: Sequence[dict[str, Any]] = ()) -> list[tuple[str, str, bool, str]]:
@@ -912,9 +949,14 @@ def bars(summary: dict[str, Any], theory: Sequence[dict[str, Any]] = ()) -> list
         out.append((f"{mode}: NEES in the 95 % band ≥ 90 % of aided epochs (worst scenario)",
                     f"{100 * worst_n['nees_in_band']:.0f} % ({k_n.rsplit('/', 1)[0]})",
                     worst_n["nees_in_band"] >= 0.9, "the filter's own σ against the truth"))  # fmt: skip
-        out.append((f"{mode}: 2σ covers the error at outage end ≥ 90 % of seeds (worst)",
-                    f"{100 * worst_c['covered_2sigma']:.0f} % ({k_c})", worst_c["covered_2sigma"] >= 0.9,
-                    "few seeds: one miss in ten is the bar"))  # fmt: skip
+        ideal = worst_c.get("covered_2sigma_if_consistent", math.nan)
+        out.append((f"{mode}: 2σ covers the error at outage end ≥ {100 * COVERAGE_BAR:.0f} % of seeds (worst)",
+                    f"{100 * worst_c['covered_2sigma']:.0f} % ({k_c}); a consistent filter with these σ: "
+                    f"{100 * ideal:.0f} %, reaching {100 * COVERAGE_BAR:.0f} % in "
+                    f"{100 * worst_c.get('coverage_bar_pass_if_consistent', math.nan):.0f} % of such runs",
+                    worst_c["covered_2sigma"] >= COVERAGE_BAR,
+                    "few seeds: one miss in ten is the bar; a 2-D error inside 2σ of its major axis is 86.5–95.4 %, "
+                    "not 95 %"))  # fmt: skip
         cpu = max(st["cpu_s_per_flight_s"] for _, st in keyed)
         out.append((f"{mode}: ≥ {SPEED_BAR_X_REAL_TIME:g}× real time (benchmark run, per mode, front end shared)",
                     f"{1.0 / cpu:.0f}×", 1.0 / cpu >= SPEED_BAR_X_REAL_TIME, "a shared, noisy machine"))  # fmt: skip
