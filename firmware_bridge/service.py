@@ -465,7 +465,8 @@ class CompanionService:
         f = self.filter
         was = f is not None and f.initialised
         resets = f.counts.get("gnss_position_reset", 0) if f is not None else 0
-        self.driver.gnss(t_valid_s, t_now, np.asarray(p, dtype=np.float64).reshape(3), fix.v_ned_m_s)
+        self.driver.gnss(t_valid_s, t_now, np.asarray(p, dtype=np.float64).reshape(3), fix.v_ned_m_s, fix.h_acc_m,
+                         fix.v_acc_m)  # fmt: skip
         # the pose jumps when it starts again (a reboot, a long IMU gap, a GNSS lock-out, divergence) and when the
         # position is reset to a fix (reacquisition): ODOMETRY's reset_counter tells the autopilot
         restarted = not was and math.isfinite(self._t_initialised_s)  # initialised before: this is a restart

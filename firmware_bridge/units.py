@@ -105,8 +105,9 @@ class GnssFix:
     lon_deg: float
     alt_m: float  # above mean sea level
     v_ned_m_s: F64Array  # NED; D is NaN (GPS_RAW_INT has no vertical velocity)
-    h_acc_m: float  # NaN when unknown
+    h_acc_m: float  # the receiver's horizontal accuracy [m], NaN when unknown
     satellites: int
+    v_acc_m: float = math.nan  # its vertical accuracy [m], NaN when unknown
 
 
 @dataclass(frozen=True)
@@ -228,7 +229,7 @@ def from_gps_raw_int(m: MavlinkMessage) -> GnssFix | None:
         return None
     speed = m.vel * 0.01 if m.vel != UINT16_UNKNOWN else math.nan
     course = math.radians(m.cog * 0.01) if m.cog != UINT16_UNKNOWN else math.nan
-    h_acc = getattr(m, "h_acc", 0)
+    h_acc, v_acc = getattr(m, "h_acc", 0), getattr(m, "v_acc", 0)  # MAVLink 2 extensions: 0 when unknown
     return GnssFix(
         t_s=m.time_usec * 1e-6,
         fix_type=int(m.fix_type),
@@ -238,6 +239,7 @@ def from_gps_raw_int(m: MavlinkMessage) -> GnssFix | None:
         v_ned_m_s=np.array([speed * math.cos(course), speed * math.sin(course), math.nan]),
         h_acc_m=h_acc * 1e-3 if h_acc else math.nan,
         satellites=int(m.satellites_visible),
+        v_acc_m=v_acc * 1e-3 if v_acc else math.nan,
     )
 
 

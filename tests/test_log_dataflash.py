@@ -108,6 +108,11 @@ def test_real_log_unit_conversions_match_the_raw_records(shared_logs: Path, real
     np.testing.assert_allclose(log["gnss_lat_deg"], [_raw(m, "Lat") * 1e-7 for m in gps], rtol=0, atol=1e-9)
     np.testing.assert_allclose(log["gnss_lon_deg"], [_raw(m, "Lng") * 1e-7 for m in gps], rtol=0, atol=1e-9)
     np.testing.assert_allclose(log["gnss_alt_m"], [_raw(m, "Alt") * 0.01 for m in gps], rtol=0, atol=1e-9)
+    # the receiver's accuracy: GPA, logged beside each GPS with its TimeUS, HAcc/VAcc in cm
+    gpa = {m.TimeUS: m for _, _, m in records if m.get_type() == "GPA"}
+    assert all(m.TimeUS in gpa for m in gps)
+    np.testing.assert_allclose(log["gnss_h_acc_m"], [_raw(gpa[m.TimeUS], "HAcc") * 0.01 for m in gps], atol=1e-9)
+    np.testing.assert_allclose(log["gnss_v_acc_m"], [_raw(gpa[m.TimeUS], "VAcc") * 0.01 for m in gps], atol=1e-9)
     raw_mag = np.array([[_raw(m, f) for f in ("MagX", "MagY", "MagZ")] for m in mag])
     np.testing.assert_allclose(log["mag_field_b_t"], raw_mag * MGAUSS_TO_T, rtol=1e-12)
     # the UTC of the boot: pymavlink's own GPS-time clock, and a date in ArduPlane 3.8.2's time (late 2017)
@@ -129,7 +134,8 @@ def test_real_log_report(shared_logs: Path, real: LogRead) -> None:
     assert rep.last_time_s is not None and rep.last_time_s <= last[2].TimeUS * 1e-6
     assert log.duration_s == pytest.approx(1.0, abs=0.1)  # "1.05 s on the ground" (the README)
     assert rep.malformed == 0 and not rep.duplicates
-    assert set(rep.used) == {"IMU", "BARO", "MAG", "GPS", "RCOU", "ATT", "POS"}  # ATT, POS: the autopilot's estimate
+    # ATT, POS: the autopilot's estimate; GPA: the receiver's accuracy
+    assert set(rep.used) == {"IMU", "BARO", "MAG", "GPS", "GPA", "RCOU", "ATT", "POS"}
     assert {"NKF1", "IMU2", "MAG2", "AHR2"} <= set(rep.unknown)  # NKF1: POS is there
     assert real.truth is None
     assert any("no airspeed" in w for w in rep.warnings)  # no ARSP in this log

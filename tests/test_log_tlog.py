@@ -61,7 +61,7 @@ def _flight(tmp_path: Path, seconds: float = 3.0) -> TlogBuilder:
                 b.add(t, b.ap.named_value_float_encode(ms, name.encode(), 100.0 * (i + 1) + t))
         if k % 80 == 0:
             b.add(t, b.ap.gps_raw_int_encode(round(t * 1e6), 3, 473_977_420, 85_455_940, 488_000, 80, 120, 1500, 9000,
-                                             14))  # fmt: skip
+                                             14, 0, 1800, 2900))  # fmt: skip
             b.add(t, b.gcs.named_value_float_encode(round(t * 1e3), b"P00", -1.0), b.gcs)  # not the autopilot's
         if k % 400 == 0:
             b.heartbeat(t)
@@ -80,6 +80,7 @@ def test_units_and_time_base(tmp_path: Path) -> None:
     assert log["gnss_lat_deg"][0] == pytest.approx(47.397742) and log["gnss_alt_m"][0] == pytest.approx(488.0)
     v = log["gnss_v_ned_m_s"][0]  # 15 m/s on course 90°: east, no vertical velocity in GPS_RAW_INT
     assert v[0] == pytest.approx(0.0, abs=1e-9) and v[1] == pytest.approx(15.0) and math.isnan(v[2])
+    assert log["gnss_h_acc_m"][0] == pytest.approx(1.8) and log["gnss_v_acc_m"][0] == pytest.approx(2.9)  # mm
     assert np.allclose(log["servo_pwm_us"][0], [1500, 1600, 1200, 1450])
     # one port frame per time_boot_ms with every port; the ground station's P00 is not the autopilot's
     assert log["ports_dp_pa"].shape == (len(log["ports_t_s"]), 3) and np.all(np.isfinite(log["ports_dp_pa"]))

@@ -123,6 +123,9 @@ def test_real_log_gnss_velocity_consistent_with_positions(real: tuple[LogRead, A
     tol = 2.0 * np.array([g["eph"].max(), g["eph"].max(), g["epv"].max()])
     assert np.all(np.abs((ned[-1] - ned[0]) - np.trapezoid(v, t, axis=0)) < tol)
     np.testing.assert_allclose(np.hypot(v[:, 0], v[:, 1]), g["vel_m_s"][g["fix_type"] >= 3], atol=0.01)
+    # the receiver's accuracy, eph/epv [m], one per fix (the filter scales its GNSS model by it)
+    np.testing.assert_allclose(log["gnss_h_acc_m"], g["eph"][g["fix_type"] >= 3], rtol=1e-6)
+    np.testing.assert_allclose(log["gnss_v_acc_m"], g["epv"][g["fix_type"] >= 3], rtol=1e-6)
 
 
 def test_real_log_pitot_agrees_with_px4_airspeed(real: tuple[LogRead, Any, list[float]]) -> None:

@@ -45,7 +45,10 @@ def _truth(t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np
 GNSS_DELAY_S = 0.1
 
 
-def _run(rng: np.random.Generator, mode: str = "ins", delayed: bool = False) -> list[float]:
+def _run(rng: np.random.Generator, mode: str = "ins", delayed: bool = False, sky: float = 1.0,
+         reported: bool = True) -> list[float]:  # fmt: skip
+    """One run's NEES; ``sky``: the GNSS errors (white and Gauss–Markov) this many times the filter's nominal
+    ones, the receiver's accuracy reported with them (``reported``) or not."""
     cfg = NavConfig(vehicle=load_vehicle("uav-2m"), origin_alt_m=0.0, mag_field_ned_ut=MAG_NED_UT)
     f = NavFilter(mode, cfg)
     p, v, q, _, f_b = _truth(0.0)
@@ -62,7 +65,9 @@ def _run(rng: np.random.Generator, mode: str = "ins", delayed: bool = False) -> 
     b_a = rng.normal(0.0, sig0[12:15])
     b_m = rng.normal(0.0, sig0[18:21])
     noise = cfg.noise
-    g_gnss = rng.normal(0.0, [noise.gnss_sigma_ne_m, noise.gnss_sigma_ne_m, noise.gnss_sigma_d_m])
+    g_gnss = sky * rng.normal(0.0, [noise.gnss_sigma_ne_m, noise.gnss_sigma_ne_m, noise.gnss_sigma_d_m])
+    white = np.array([cfg.gnss_pos_sigma_ne_m, cfg.gnss_pos_sigma_ne_m, cfg.gnss_pos_sigma_d_m])
+    acc = (math.hypot(white[0], noise.gnss_sigma_ne_m) * sky, math.hypot(white[2], noise.gnss_sigma_d_m) * sky)
     f.x = truth0.plus(rng.normal(0.0, sig0) * (np.arange(N_ERR) < 9))  # the filter starts off the truth
     f.x.b_baro_m = 0.0
     dt = 1.0 / RATE_HZ
@@ -79,15 +84,15 @@ def _run(rng: np.random.Generator, mode: str = "ins", delayed: bool = False) -> 
             dt,
         )
         f.imu(t, inc)
-        g_gnss = decay * g_gnss + math.sqrt(1 - decay**2) * rng.normal(
+        g_gnss = decay * g_gnss + sky * math.sqrt(1 - decay**2) * rng.normal(
             0.0, [noise.gnss_sigma_ne_m, noise.gnss_sigma_ne_m, noise.gnss_sigma_d_m]
         )
         p, v, q, _, _ = _truth(t)
         if k % 10 == 0:  # 5 Hz GNSS, valid now; delayed: it arrives GNSS_DELAY_S later
-            pending.append((t, p + g_gnss + rng.normal(0.0, [0.7, 0.7, 1.0]), v + rng.normal(0.0, 0.2, 3)))
+            pending.append((t, p + g_gnss + sky * rng.normal(0.0, white), v + rng.normal(0.0, 0.2, 3)))
         while pending and pending[0][0] <= t + 1e-9 - (GNSS_DELAY_S if delayed else 0.0):
             tv, pg, vg = pending.pop(0)
-            f.gnss(tv, t, pg, vg)
+            f.gnss(tv, t, pg, vg, *(acc if reported else (math.nan, math.nan)))
         if k % 5 == 0:
             p_static = float(101325.0 * (1.0 - 2.25577e-5 * (-p[2])) ** 5.25588)
             f.baro(t, float(101325.0 * (1.0 - 2.25577e-5 * (-p[2] + rng.normal(0.0, 1.0))) ** 5.25588))
@@ -112,3 +117,36 @@ def test_monte_carlo_nees_inside_the_chi2_band(mode: str, delayed: bool) -> None
     lo, hi = scipy.stats.chi2.ppf([0.025, 0.975], 9 * RUNS) / RUNS
     inside = float(np.mean((mean >= lo) & (mean <= hi)))
     assert inside >= 0.9, f"average NEES inside [{lo:.2f}, {hi:.2f}] for {100 * inside:.0f} % of epochs"
+
+
+@pytest.mark.parametrize("reported", [True, False])
+def test_a_worse_sky_the_receiver_reports_keeps_the_nees_in_band(reported: bool) -> None:
+    """GNSS errors 2.5× the nominal model's (multipath, a poor constellation), as the receiver's hAcc/vAcc say:
+    with the reports the filter's GNSS error model follows (EKF3's FuseVelPosNED takes the reported accuracy)
+    and stays consistent; without them the same flights are not."""
+    rng = np.random.default_rng(20261127)
+    runs = np.array([_run(rng, "ins", sky=2.5, reported=reported) for _ in range(RUNS)])
+    mean = runs.mean(axis=0)
+    lo, hi = scipy.stats.chi2.ppf([0.025, 0.975], 9 * RUNS) / RUNS
+    inside = float(np.mean((mean >= lo) & (mean <= hi)))
+    if reported:
+        assert inside >= 0.9, f"average NEES inside [{lo:.2f}, {hi:.2f}] for {100 * inside:.0f} % of epochs"
+    else:
+        assert inside < 0.5, f"unreported, the average NEES is still inside for {100 * inside:.0f} % of epochs"
+
+
+def test_a_reported_accuracy_better_than_nominal_changes_nothing_and_a_worse_one_widens_the_fix() -> None:
+    """EKF3 floors the reported hAcc at its own noise parameter: a receiver claiming better than the filter's
+    nominal model changes nothing; a worse one widens the position the fix leaves."""
+    cfg = NavConfig(vehicle=load_vehicle("uav-2m"), origin_alt_m=0.0, mag_field_ned_ut=MAG_NED_UT)
+    p, v, _, _, f_b = _truth(0.0)
+    out = {}
+    for name, acc in (("none", (math.nan, math.nan)), ("better", (0.5, 0.8)), ("worse", (5.0, 8.0))):
+        f = NavFilter("ins", cfg)
+        f.initialise(0.0, p, v, f_b, None)
+        f.imu(0.02, ImuIncrement(np.zeros(3), f_b * 0.02, 0.02))
+        f.gnss(0.02, 0.02, p + np.array([1.0, -1.0, 0.5]), v, *acc)
+        out[name] = (f.x.p_ned.copy(), f.P[:3, :3].copy())
+    np.testing.assert_array_equal(out["better"][0], out["none"][0])
+    np.testing.assert_array_equal(out["better"][1], out["none"][1])
+    assert np.all(np.diag(out["worse"][1]) > 1.5 * np.diag(out["none"][1]))

@@ -59,7 +59,7 @@ def test_units_from_the_mock_encoders() -> None:
     assert g is not None and g.t_s == 5.0 and g.fix_type == 3
     assert (g.lat_deg, g.lon_deg, g.alt_m) == pytest.approx((lat, lon, alt), abs=1e-7)
     np.testing.assert_allclose(g.v_ned_m_s[:2], [vn, ve], atol=0.02)  # cm/s and cdeg quantisation
-    assert math.isnan(g.v_ned_m_s[2]) and g.h_acc_m == pytest.approx(0.7)
+    assert math.isnan(g.v_ned_m_s[2]) and g.h_acc_m == pytest.approx(0.7) and g.v_acc_m == pytest.approx(1.0)
     no_fix = _roundtrip(mav.gps_raw_int_encode(1, 1, 0, 0, 0, 65535, 65535, 65535, 65535, 0))
     assert units.from_gps_raw_int(no_fix) is None
     p = units.from_scaled_pressure(_roundtrip(mav.scaled_pressure_encode(2000, 1001.25, 0.61, 1530, 0)))

@@ -10,11 +10,13 @@ A flight-log directory holds:
   written before 2026-11-26 reads as all NaN);
   ``baro_t_s``, ``baro_pa``; ``servo_t_s``, ``servo_pwm_us`` (K, 4, ArduPlane order aileron, elevator,
   throttle, rudder); ``gnss_t_s`` (time of validity), ``gnss_lat_deg``, ``gnss_lon_deg``, ``gnss_alt_m``,
-  ``gnss_v_ned_m_s`` (G, 3); ``mag_t_s``, ``mag_field_b_t`` (H, 3). A stream the aircraft lacks (no pitot)
-  has zero rows. What the autopilot's own estimator said, where the log holds it (optional, zero rows when
-  absent): ``ap_att_t_s``, ``ap_att_q_nb`` (A, 4: body FRD → NED, w x y z); ``ap_pos_t_s``,
-  ``ap_pos_lat_deg``, ``ap_pos_lon_deg``, ``ap_pos_alt_m`` (B,) — for comparison, and the autopilot's
-  attitude as a measurement where the IMU is logged too slowly to integrate (a ground station's tlog).
+  ``gnss_v_ned_m_s`` (G, 3), ``gnss_h_acc_m``, ``gnss_v_acc_m`` (the receiver's accuracy estimates, NaN where
+  it reports none; optional: a log written before 2026-11-27 reads as all NaN); ``mag_t_s``, ``mag_field_b_t``
+  (H, 3). A stream the aircraft lacks (no pitot) has zero rows. What the autopilot's own estimator said, where
+  the log holds it (optional, zero rows when absent): ``ap_att_t_s``, ``ap_att_q_nb`` (A, 4: body FRD → NED,
+  w x y z); ``ap_pos_t_s``, ``ap_pos_lat_deg``, ``ap_pos_lon_deg``, ``ap_pos_alt_m`` (B,) — for comparison,
+  and the autopilot's attitude as a measurement where the IMU is logged too slowly to integrate (a ground
+  station's tlog).
 * ``truth.npz`` (simulated flights only, for evaluation; never an input of calibration or navigation):
   at the port sample times ``t_s``, the aerodynamic coefficients ``coeffs`` (M, 6) (body axes about the
   true CG, on the true dynamic pressure ``qbar_pa`` and the reference geometry), ``airspeed_m_s``,
@@ -63,6 +65,8 @@ SENSOR_KEYS: dict[str, int] = {
     "gnss_lon_deg": 1,
     "gnss_alt_m": 1,
     "gnss_v_ned_m_s": 2,
+    "gnss_h_acc_m": 1,
+    "gnss_v_acc_m": 1,
     "mag_t_s": 1,
     "mag_field_b_t": 2,
     "ap_att_t_s": 1,
@@ -73,7 +77,11 @@ SENSOR_KEYS: dict[str, int] = {
     "ap_pos_alt_m": 1,
 }
 """Every sensor array and its number of dimensions."""
-_OPTIONAL = {"pitot_temperature_c": "pitot_t_s"}  # filled with NaN, one per row of its stream, when absent
+_OPTIONAL = {
+    "pitot_temperature_c": "pitot_t_s",
+    "gnss_h_acc_m": "gnss_t_s",
+    "gnss_v_acc_m": "gnss_t_s",
+}  # filled with NaN, one per row of its stream, when absent
 # the autopilot's own estimate: zero rows when a log has none (and in logs written before 2026-11-26)
 _EMPTY_IF_ABSENT: dict[str, tuple[int, ...]] = {
     "ap_att_t_s": (0,), "ap_att_q_nb": (0, 4), "ap_pos_t_s": (0,), "ap_pos_lat_deg": (0,), "ap_pos_lon_deg": (0,),
@@ -85,7 +93,15 @@ _STREAMS = {
     "pitot": ("pitot_t_s", "pitot_dp_pa", "pitot_temperature_c"),
     "baro": ("baro_t_s", "baro_pa"),
     "servo": ("servo_t_s", "servo_pwm_us"),
-    "gnss": ("gnss_t_s", "gnss_lat_deg", "gnss_lon_deg", "gnss_alt_m", "gnss_v_ned_m_s"),
+    "gnss": (
+        "gnss_t_s",
+        "gnss_lat_deg",
+        "gnss_lon_deg",
+        "gnss_alt_m",
+        "gnss_v_ned_m_s",
+        "gnss_h_acc_m",
+        "gnss_v_acc_m",
+    ),
     "mag": ("mag_t_s", "mag_field_b_t"),
     "ap_att": ("ap_att_t_s", "ap_att_q_nb"),
     "ap_pos": ("ap_pos_t_s", "ap_pos_lat_deg", "ap_pos_lon_deg", "ap_pos_alt_m"),

@@ -114,10 +114,20 @@ class StreamBuilder:
     def mag(self, t_s: float, field_b_ut: Vec) -> None:
         self._rows["mag"].append((t_s, *(v * UT_TO_T for v in field_b_ut)))
 
-    def gnss(self, t_valid_s: float, lat_deg: float, lon_deg: float, alt_m: float, v_ned_m_s: Vec
-             ) -> None:  # fmt: skip
-        """A 3-D fix at its time of validity; v_D NaN when the format has no vertical velocity."""
-        self._rows["gnss"].append((t_valid_s, lat_deg, lon_deg, alt_m, *v_ned_m_s))
+    def gnss(self, t_valid_s: float, lat_deg: float, lon_deg: float, alt_m: float, v_ned_m_s: Vec,
+             h_acc_m: float = math.nan, v_acc_m: float = math.nan) -> None:  # fmt: skip
+        """A 3-D fix at its time of validity; v_D NaN when the format has no vertical velocity; the receiver's
+        horizontal and vertical accuracy [m], NaN where the log has none."""
+        self._rows["gnss"].append((t_valid_s, lat_deg, lon_deg, alt_m, *v_ned_m_s, h_acc_m, v_acc_m))
+
+    def gnss_accuracy(self, t_s: float, h_acc_m: float, v_acc_m: float) -> bool:
+        """The accuracy of the last fix, logged apart from it with the same stamp (DataFlash's GPA beside its
+        GPS); False when the last fix has another stamp."""
+        rows = self._rows["gnss"]
+        if not rows or abs(rows[-1][0] - t_s) > 1e-6:
+            return False
+        rows[-1] = (*rows[-1][:7], h_acc_m, v_acc_m)
+        return True
 
     def servo(self, t_s: float, pwm_us: Vec) -> None:
         """PWM [µs] of aileron, elevator, throttle, rudder (ArduPlane order)."""
@@ -156,7 +166,7 @@ class StreamBuilder:
         pitot = self._table("pitot", 3, report)
         baro = self._table("baro", 2, report)
         servo = self._table("servo", 5, report)
-        gnss = self._table("gnss", 7, report)
+        gnss = self._table("gnss", 9, report)
         mag = self._table("mag", 4, report)
         att = self._table("ap_att", 5, report)
         pos = self._table("ap_pos", 4, report)
@@ -167,7 +177,8 @@ class StreamBuilder:
             "baro_t_s": baro[:, 0], "baro_pa": baro[:, 1],
             "servo_t_s": servo[:, 0], "servo_pwm_us": servo[:, 1:], "gnss_t_s": gnss[:, 0],
             "gnss_lat_deg": gnss[:, 1], "gnss_lon_deg": gnss[:, 2], "gnss_alt_m": gnss[:, 3],
-            "gnss_v_ned_m_s": gnss[:, 4:7], "mag_t_s": mag[:, 0], "mag_field_b_t": mag[:, 1:],
+            "gnss_v_ned_m_s": gnss[:, 4:7], "gnss_h_acc_m": gnss[:, 7], "gnss_v_acc_m": gnss[:, 8],
+            "mag_t_s": mag[:, 0], "mag_field_b_t": mag[:, 1:],
             "ap_att_t_s": att[:, 0], "ap_att_q_nb": att[:, 1:], "ap_pos_t_s": pos[:, 0], "ap_pos_lat_deg": pos[:, 1],
             "ap_pos_lon_deg": pos[:, 2], "ap_pos_alt_m": pos[:, 3],
         }  # fmt: skip

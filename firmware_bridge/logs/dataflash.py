@@ -19,6 +19,8 @@ GPS           Spd, GCrs, VZ               m/s, deg, m/s (down positive)         
                                                                                   Spd sin GCrs, VZ)
 GPS           GWk, GMS (old: Week,        GPS week, ms of the week                UTC of the boot
               TimeMS)
+GPA           HAcc, VAcc                  m                                       the receiver's accuracy, of the
+                                                                                  GPS record with its TimeUS
 RCOU          C1..C14 (old: Ch1..Ch12,    µs                                      servo, by SERVOn_FUNCTION
               Chan1..Chan8)                                                       (old: RCMAP_*)
 SIM (SITL)    Lat, Lng, Alt, Roll..Yaw    deg, deg, m AMSL, deg                   truth (q_nb from the angles)
@@ -159,7 +161,7 @@ class _Converter:
         self.ap_estimate: dict[str, str | None] = {"position": None, "attitude": None}  # the messages read
         self._handlers: dict[str, Callable[[Any, float], bool | None]] = {
             "BARO": self._baro, "ARSP": self._pitot, "ASPD": self._pitot, "MAG": self._mag,
-            "GPS": self._gps, "RCOU": self._rcou, "SIM": self._sim, "SIM2": self._sim2,
+            "GPS": self._gps, "GPA": self._gpa, "RCOU": self._rcou, "SIM": self._sim, "SIM2": self._sim2,
             "ATT": self._att, "POS": self._pos, "XKF1": self._ekf_pos, "NKF1": self._ekf_pos, "ORGN": self._orgn,
         }  # fmt: skip
 
@@ -291,6 +293,12 @@ class _Converter:
             self.boot_utc_s.append(_gps_to_unix_s(week, ms) - t)
         self.builder.gnss(t, m.Lat, m.Lng, m.Alt, v_ned)
         return True
+
+    def _gpa(self, m: Any, t: float) -> bool | None:
+        """The accuracy ArduPilot logs beside each GPS record, with its TimeUS (0: not reported); None when its
+        fix was not kept (no 3-D fix)."""
+        h, v = (float(a) if _finite(a) and a > 0.0 else math.nan for a in (m.HAcc, m.VAcc))
+        return self.builder.gnss_accuracy(t, h, v) or None
 
     def _ports(self, m: Any, t: float) -> None:
         """A chunk of a port frame (VPP0: ports 0..11, VPP1: 12..23, ...; fields named like the ports). The

@@ -193,7 +193,7 @@ class _Reader:
         self.builder.pitot(t_s, dp_pa, temperature_c)
 
     def on_gnss(self, t_valid_s: float, t_arrived_s: float, fix: units.GnssFix) -> None:
-        self.builder.gnss(t_valid_s, fix.lat_deg, fix.lon_deg, fix.alt_m, fix.v_ned_m_s)
+        self.builder.gnss(t_valid_s, fix.lat_deg, fix.lon_deg, fix.alt_m, fix.v_ned_m_s, fix.h_acc_m, fix.v_acc_m)
 
     def on_servo(self, t_s: float, pwm_us: F64Array) -> None:
         self.builder.servo(t_s, pwm_us[:4])

@@ -19,7 +19,8 @@ differential_pressure              pitot Δp [Pa]: differential_pressure_pa (cur
 vehicle_magnetometer               magnetometer: magnetometer_ga [gauss] → µT
 vehicle_gps_position (sensor_gps)  3-D fixes (fix_type ≥ 3): lat/lon degE7 (int) or latitude_deg /
                                    longitude_deg; alt [mm] or altitude_msl_m (AMSL); vel_n/e/d_m_s;
-                                   time_utc_usec → UTC of the boot
+                                   time_utc_usec → UTC of the boot; eph, epv [m]: the receiver's
+                                   accuracy
 vehicle_global_position_           truth (SITL only): lat/lon/alt
 groundtruth
 vehicle_local_position_            truth (SITL only, when there is no global one): NED offsets from
@@ -268,8 +269,11 @@ def _gnss(b: StreamBuilder, g: Topic | None, report: ReadReport) -> float | None
         v[np.asarray(g["vel_ned_valid"]) == 0] = math.nan
     ok = np.asarray(g["fix_type"]) >= FIX_3D
     t = _t_sample_s(g)
+    # the receiver's accuracy: eph, epv [m] (PX4's ubx driver: hAcc, vAcc); a field that is not positive is none
+    acc = [np.asarray(g[k], np.float64) if k in g else np.full(len(t), np.nan) for k in ("eph", "epv")]
+    h_acc, v_acc = (np.where(np.isfinite(a) & (a > 0.0), a, np.nan) for a in acc)
     for i in np.flatnonzero(ok):
-        b.gnss(float(t[i]), float(lat[i]), float(lon[i]), float(alt[i]), v[i])
+        b.gnss(float(t[i]), float(lat[i]), float(lon[i]), float(alt[i]), v[i], float(h_acc[i]), float(v_acc[i]))
     if not ok.any():
         report.warn(f"{report.path.name}: no 3-D GNSS fix in {len(t)} vehicle_gps_position messages")
     if "time_utc_usec" not in g:

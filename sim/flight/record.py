@@ -69,6 +69,8 @@ def fly(
             rec["gnss_lon_deg"].append(g.lon_deg)
             rec["gnss_alt_m"].append(g.alt_m)
             rec["gnss_v_ned_m_s"].append(g.v_ned_m_s)
+            rec["gnss_h_acc_m"].append(g.h_acc_m)
+            rec["gnss_v_acc_m"].append(g.v_acc_m)
         if (b := tick.baro) is not None:
             rec["baro_t_s"].append(b.t_s)
             rec["baro_pa"].append(b.pressure_pa)

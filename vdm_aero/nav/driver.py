@@ -67,15 +67,17 @@ class NavDriver:
         for f in self.filters.values():
             f.imu(t_s, inc, air_c)
 
-    def gnss(self, t_valid_s: float, t_s: float, p_ned_m: F64Array, v_ned_m_s: F64Array) -> None:
-        """A GNSS fix valid at ``t_valid_s`` that arrived at ``t_s`` (local NED [m], [m/s]); the first one
-        initialises each filter (attitude from the specific force and the magnetometer)."""
+    def gnss(self, t_valid_s: float, t_s: float, p_ned_m: F64Array, v_ned_m_s: F64Array, h_acc_m: float = math.nan,
+             v_acc_m: float = math.nan) -> None:  # fmt: skip
+        """A GNSS fix valid at ``t_valid_s`` that arrived at ``t_s`` (local NED [m], [m/s]) with the receiver's
+        accuracy [m] (NaN: not reported); the first one initialises each filter (attitude from the specific
+        force and the magnetometer)."""
         self.t_s = t_s
         for f in self.filters.values():
             if not f.initialised:
                 f.initialise(t_s, p_ned_m, v_ned_m_s, self._f_b, self._mag_b_ut)
             else:
-                f.gnss(t_valid_s, t_s, p_ned_m, v_ned_m_s)
+                f.gnss(t_valid_s, t_s, p_ned_m, v_ned_m_s, h_acc_m, v_acc_m)
 
     def baro(self, t_s: float, pressure_pa: float) -> None:
         """Static pressure [Pa]."""

@@ -367,6 +367,7 @@ class NavFilter:
         self._wind_live = self._consider.copy()
         self._wind_live[IDX["wind"]] = False
         self._wind_live_until_s = -math.inf
+        self._gnss_scale = (1.0, 1.0)  # the GNSS error model's scale from the receiver's accuracy (gnss)
         self.fdi = AirDataFdi() if self.spec.fdi else None
         self.wind_change = WindChangeDetector() if self.spec.wind_relearn else None
         self.mag_deviation = MagDeviation(config.mag_field_ned_ut) if self.spec.mag_deviation else None
@@ -696,11 +697,14 @@ class NavFilter:
         r = self.adaptive.covariance(model.name, model.covariance()) if adaptive else model.covariance()
         return self.engine.nis(y, h, r)
 
-    def gnss(self, t_valid_s: float, t_s: float, p_ned: F64Array, v_ned: F64Array) -> None:
+    def gnss(self, t_valid_s: float, t_s: float, p_ned: F64Array, v_ned: F64Array, h_acc_m: float = math.nan,
+             v_acc_m: float = math.nan) -> None:  # fmt: skip
         """A GNSS fix valid at ``t_valid_s`` that arrived at ``t_s`` (local NED position [m], velocity [m/s];
-        a NaN vertical velocity fuses the horizontal velocity only)."""
+        a NaN vertical velocity fuses the horizontal velocity only), with the receiver's own horizontal and
+        vertical accuracy estimates [m] where it reports them (NaN: unknown)."""
         if self.x is None:
             return
+        self._gnss_accuracy(h_acc_m, v_acc_m)
         if self._buffer and t_valid_s < self._buffer[0][0] - 0.5 / self.config.filter_rate_hz:
             # older than the state buffer reaches back: a stale fix (a link hiccup, a driver repeating its
             # last fix) cannot be fused at its time of validity, and fused now it would pull the position back
@@ -716,7 +720,9 @@ class NavFilter:
         a_ned = dcm_from_quat(self.x.q_nb) @ self.inputs.f_b + np.array([0.0, 0.0, G0_M_S2])
         vel_model = GnssVelocity(c.gnss_vel_sigma_m_s, horizontal, c.gnss_latency_sigma_s * a_ned)
         vel = self._fuse(Measurement(t_valid_s, v[:2] if horizontal else v, vel_model), past)
-        pos_model = GnssPosition(c.gnss_pos_sigma_ne_m, c.gnss_pos_sigma_d_m, c.gnss_latency_sigma_s * at.v_ned)
+        s_ne, s_d = self._gnss_scale
+        pos_model = GnssPosition(c.gnss_pos_sigma_ne_m * s_ne, c.gnss_pos_sigma_d_m * s_d,
+                                 c.gnss_latency_sigma_s * at.v_ned)  # fmt: skip
         pos = self._fuse(
             Measurement(t_valid_s, np.asarray(p_ned, float), pos_model),
             past,
@@ -745,6 +751,34 @@ class NavFilter:
             elif t_s - self._pos_rejected_since > GNSS_RESET_S:
                 self._reset_position(np.asarray(p_ned, float))
         self._last_gnss_s = t_s
+
+    def _gnss_accuracy(self, h_acc_m: float, v_acc_m: float) -> None:
+        """Scale the GNSS error model by the receiver's reported accuracy, as EKF3 does (``FuseVelPosNED``: the
+        position noise is the reported hAcc, floored at ``EK3_POSNE_M_NSE``): the scale is the report against
+        this model's own total 1σ (white and Gauss–Markov), never below 1. It scales the white noise and the
+        Gauss–Markov error's steady state; when it grows, the error's variance grows with it at once (a
+        receiver reports a worse sky when its error already is worse), when it shrinks the error decays."""
+        c, n = self.config, self.process.noise_densities
+        nominal = (
+            math.hypot(c.gnss_pos_sigma_ne_m, n.gnss_sigma_ne_m),
+            math.hypot(c.gnss_pos_sigma_d_m, n.gnss_sigma_d_m),
+        )
+        new = tuple(max(a / nom, 1.0) if math.isfinite(a) and a > 0.0 else 1.0
+                    for a, nom in zip((h_acc_m, v_acc_m), nominal, strict=True))  # fmt: skip
+        if new == self._gnss_scale:
+            return
+        assert self.engine is not None
+        old_ne, old_d = self._gnss_scale
+        grow = np.square([n.gnss_sigma_ne_m, n.gnss_sigma_ne_m, n.gnss_sigma_d_m]) * np.clip(
+            np.square([new[0], new[0], new[1]]) - np.square([old_ne, old_ne, old_d]), 0.0, None
+        )
+        if grow.any():
+            i = np.arange(N_ERR)[IDX["gnss"]]
+            p = self.engine.P
+            p[i, i] += grow
+            self.engine.P = p
+        self._gnss_scale = (float(new[0]), float(new[1]))
+        self.process.set_gnss_scale(*self._gnss_scale)
 
     def _reset_position(self, p_ned: F64Array) -> None:
         assert self.x is not None and self.engine is not None

@@ -102,6 +102,13 @@ class InsProcess:
         self._phi_dt = math.nan  # Δt of the cached state-independent part of Φ
         self._phi_const = np.eye(N_ERR)
 
+    def set_gnss_scale(self, scale_ne: float, scale_d: float) -> None:
+        """The GNSS error's steady-state σ as this multiple of :class:`ProcessNoise`'s (horizontal, vertical):
+        the receiver's reported accuracy against its nominal one (:meth:`NavFilter.gnss`)."""
+        n = self.noise_densities
+        sig = np.array([n.gnss_sigma_ne_m * scale_ne, n.gnss_sigma_ne_m * scale_ne, n.gnss_sigma_d_m * scale_d])
+        self._qc[IDX["gnss"]] = 2.0 / n.gnss_tau_s * np.square(sig)
+
     def set_gust_sigma(self, sigma_m_s: F64Array) -> None:
         """The gust's steady-state standard deviation (N, E, D) [m/s]: q = 2σ²/τ keeps the Gauss–Markov
         variance at σ² (the filter sets it from the turbulence it measures while aided)."""

@@ -46,6 +46,7 @@ class NavStream:
     gnss_t_s: F64Array
     gnss_p_ned_m: F64Array
     gnss_v_ned_m_s: F64Array
+    gnss_acc_m: F64Array  # (G, 2): the receiver's horizontal and vertical accuracy [m], NaN where not reported
     baro_t_s: F64Array
     baro_pa: F64Array
     mag_t_s: F64Array
@@ -96,6 +97,9 @@ class NavStream:
             gnss_t_s=gt + gnss_latency_s,
             gnss_p_ned_m=np.asarray(p_ned).reshape(-1, 3),
             gnss_v_ned_m_s=log["gnss_v_ned_m_s"],
+            gnss_acc_m=np.column_stack(
+                [log.arrays.get(k, np.full(len(gt), np.nan)) for k in ("gnss_h_acc_m", "gnss_v_acc_m")]
+            ),
             baro_t_s=log["baro_t_s"],
             baro_pa=log["baro_pa"],
             mag_t_s=log["mag_t_s"],
@@ -188,7 +192,7 @@ class LogRunner:
             elif kind == _GNSS:
                 tv = float(s.gnss_t_valid_s[i])
                 if self._gnss_ok(tv):
-                    d.gnss(tv, t, s.gnss_p_ned_m[i], s.gnss_v_ned_m_s[i])
+                    d.gnss(tv, t, s.gnss_p_ned_m[i], s.gnss_v_ned_m_s[i], *(float(a) for a in s.gnss_acc_m[i]))
             elif kind == _BARO:
                 if not any(a <= t < b for a, b in self.baro_blocked):
                     d.baro(t, float(s.baro_pa[i]))
