@@ -36,7 +36,10 @@ def test_a_fix_is_fused_at_its_stamp_less_the_receiver_latency(
         assert svc.filter is not None and svc.filter.initialised
         calls: list[tuple[float, float]] = []
         real = svc.driver.gnss
-        svc.driver.gnss = lambda t_valid, t_now, p, v: (calls.append((t_valid, t_now)), real(t_valid, t_now, p, v))
+        svc.driver.gnss = lambda t_valid, t_now, p, v, *acc: (
+            calls.append((t_valid, t_now)),
+            real(t_valid, t_now, p, v, *acc),
+        )
         t = WARM_T0_S + WARM_S + 0.2
         svc._dispatch(ap(ap.tx.gps_raw_int_encode(round(t * 1e6), 3, 422830335 + 4900, -713500307, 155600, 80, 120,
                                                    1800, 0, 14)), t + 0.05)  # fmt: skip
