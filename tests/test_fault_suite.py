@@ -30,8 +30,11 @@ def fault_flight(design_deim12: dict[str, Path], tmp_path_factory: pytest.TempPa
     # unprivileged run skips it with this reason instead of failing on something that is not the service's
     if os.geteuid() != 0 and not os.environ.get("CI"):
         pytest.skip("the full-disk fault mounts a small tmpfs: run as root (CI does)")
+    # real time ×4, as the survey-service flight: at ×6 the service fell behind the link beside the other test
+    # worker on this 2-core machine when it ran at half its usual speed (2026-11-27: the 10 s link silence went
+    # unreported in three CI runs of this code and under a CPU load of the code before it too; at ×4 it passes)
     run = ServiceRun(design_deim12["data"], design_deim12["model"], None, mode="vdm-deim", scenario="survey", seed=0,
-                     outage_s=60.0, speed=6.0, signing_key_hex=SIGNING_KEY_HEX)  # fmt: skip
+                     outage_s=60.0, speed=4.0, signing_key_hex=SIGNING_KEY_HEX)  # fmt: skip
     ports = NavModels.load(run.design_data, run.deim, None).port_names
     t_out = bench_scenario("survey", 0, run.deim, 300.0)[2]
     flight, windows = suite_flight(run, ports, t_out)
