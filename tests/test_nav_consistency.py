@@ -8,6 +8,7 @@ what ``vdm-aero bench nav-drift`` measures."""
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -46,10 +47,12 @@ GNSS_DELAY_S = 0.1
 
 
 def _run(rng: np.random.Generator, mode: str = "ins", delayed: bool = False, sky: float = 1.0,
-         reported: bool = True) -> list[float]:  # fmt: skip
+         reported: bool = True, wrong_lag: bool = False, **cfg_kw: Any) -> list[float]:  # fmt: skip
     """One run's NEES; ``sky``: the GNSS errors (white and Gauss–Markov) this many times the filter's nominal
-    ones, the receiver's accuracy reported with them (``reported``) or not."""
-    cfg = NavConfig(vehicle=load_vehicle("uav-2m"), origin_alt_m=0.0, mag_field_ned_ut=MAG_NED_UT)
+    ones, the receiver's accuracy reported with them (``reported``) or not; ``wrong_lag``: the fixes' stamps
+    off their time of validity by a lag error drawn from the filter's prior, and a jitter from its own σ."""
+    cfg = NavConfig(vehicle=load_vehicle("uav-2m"), origin_alt_m=0.0, mag_field_ned_ut=MAG_NED_UT, **cfg_kw)
+    lag_s = rng.normal(0.0, NavConfig.gnss_latency_sigma_s) if wrong_lag else 0.0
     f = NavFilter(mode, cfg)
     p, v, q, _, f_b = _truth(0.0)
     f.initialise(0.0, p, v, f_b, None)
@@ -92,7 +95,8 @@ def _run(rng: np.random.Generator, mode: str = "ins", delayed: bool = False, sky
             pending.append((t, p + g_gnss + sky * rng.normal(0.0, white), v + rng.normal(0.0, 0.2, 3)))
         while pending and pending[0][0] <= t + 1e-9 - (GNSS_DELAY_S if delayed else 0.0):
             tv, pg, vg = pending.pop(0)
-            f.gnss(tv, t, pg, vg, *(acc if reported else (math.nan, math.nan)))
+            jitter_s = rng.normal(0.0, NavConfig.gnss_jitter_sigma_s) if wrong_lag else 0.0
+            f.gnss(tv + lag_s + jitter_s, t, pg, vg, *(acc if reported else (math.nan, math.nan)))
         if k % 5 == 0:
             p_static = float(101325.0 * (1.0 - 2.25577e-5 * (-p[2])) ** 5.25588)
             f.baro(t, float(101325.0 * (1.0 - 2.25577e-5 * (-p[2] + rng.normal(0.0, 1.0))) ** 5.25588))
@@ -108,11 +112,13 @@ def _run(rng: np.random.Generator, mode: str = "ins", delayed: bool = False, sky
     return nees
 
 
-@pytest.mark.parametrize(("mode", "delayed"), [("ins", False), ("ins", True), ("airspeed-dr", False),
-                                               ("airspeed-dr", True)])  # fmt: skip
-def test_monte_carlo_nees_inside_the_chi2_band(mode: str, delayed: bool) -> None:
+@pytest.mark.parametrize(("mode", "delayed", "wrong_lag"), [("ins", False, False), ("ins", True, False),
+                                                            ("ins", True, True), ("airspeed-dr", False, False),
+                                                            ("airspeed-dr", True, False)])  # fmt: skip
+def test_monte_carlo_nees_inside_the_chi2_band(mode: str, delayed: bool, wrong_lag: bool) -> None:
+    # wrong_lag: the receiver's latency error, a state, drawn from its prior (the stamps off by it)
     rng = np.random.default_rng(20261124)
-    runs = np.array([_run(rng, mode, delayed) for _ in range(RUNS)])  # (runs, epochs)
+    runs = np.array([_run(rng, mode, delayed, wrong_lag=wrong_lag) for _ in range(RUNS)])  # (runs, epochs)
     mean = runs.mean(axis=0)
     lo, hi = scipy.stats.chi2.ppf([0.025, 0.975], 9 * RUNS) / RUNS
     inside = float(np.mean((mean >= lo) & (mean <= hi)))

@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
 import numpy as np
 import pytest
@@ -20,6 +20,7 @@ from vdm_aero.geodesy import LocalFrame
 from vdm_aero.model import AeroModel
 from vdm_aero.nav.design_fit import DesignFlightData, PortPressureModel, StabilityDerivatives
 from vdm_aero.nav.filter import NavConfig, NavFilter
+from vdm_aero.nav.ins import ProcessNoise
 from vdm_aero.nav.ports_frontend import PortFrontEnd
 from vdm_aero.nav.stream import LogRunner, NavStream
 from vdm_aero.vehicle import load_vehicle
@@ -79,28 +80,57 @@ def test_a_300_m_gnss_jump_is_rejected_by_the_gate(world: dict[str, Any]) -> Non
     assert _h_error(world, f, r.t_s) < 10.0
 
 
+def _velocity_rms_error(w: dict[str, Any], r: LogRunner, mode: str) -> float:
+    """The horizontal velocity's rms error [m/s] after 60 s, to the run's end."""
+    e: list[float] = []
+
+    def on_step(t: float) -> None:
+        f = r.filters[mode]
+        if t > 60.0 and round(t * 50) % 5 == 0 and f.x is not None:
+            tt = w["truth"]["t_s"]
+            v = np.array([np.interp(t, tt, w["truth"]["v_ned_m_s"][:, i]) for i in range(2)])
+            e.append(float(np.linalg.norm(f.x.v_ned[:2] - v)))
+
+    r.run_until(DURATION_S - 5.0, on_step)
+    return float(np.sqrt(np.mean(np.square(e))))
+
+
+# the receiver's latency error held at zero (no prior, no process noise): the delayed fusion alone
+LAG_HELD: Final = {"gnss_latency_sigma_s": 0.0, "noise": ProcessNoise(gnss_lag_s_per_sqrt_s=0.0)}
+
+
 def test_delayed_gnss_is_fused_at_its_time_of_validity(world: dict[str, Any]) -> None:
     # the receiver's fixes arrive 100 ms after their time of validity; fusing them as if current lags the
-    # solution by 1.9 m along track at 19 m/s and turns the velocity late in every turn
+    # solution by 1.9 m along track at 19 m/s and turns the velocity late in every turn. The latency error
+    # state is held here: it would learn most of the 100 ms itself (the next test)
     import dataclasses
 
     errs = {}
     for label in ("time of validity", "as if current"):
-        r = _runner(world, ("airspeed-dr",))
+        r = _runner(world, ("airspeed-dr",), **LAG_HELD)
         if label == "as if current":
             r.stream = dataclasses.replace(r.stream, gnss_t_valid_s=r.stream.gnss_t_s)
-        e: list[float] = []
-
-        def on_step(t: float, r: LogRunner = r, e: list[float] = e) -> None:
-            f = r.filters["airspeed-dr"]
-            if t > 60.0 and round(t * 50) % 5 == 0 and f.x is not None:
-                tt = world["truth"]["t_s"]
-                v = np.array([np.interp(t, tt, world["truth"]["v_ned_m_s"][:, i]) for i in range(2)])
-                e.append(float(np.linalg.norm(f.x.v_ned[:2] - v)))
-
-        r.run_until(DURATION_S - 5.0, on_step)
-        errs[label] = float(np.sqrt(np.mean(np.square(e))))
+        errs[label] = _velocity_rms_error(world, r, "airspeed-dr")
     assert errs["time of validity"] < 0.8 * errs["as if current"], errs
+
+
+def test_the_filter_learns_a_receiver_latency_the_autopilot_assumed_wrong(world: dict[str, Any]) -> None:
+    # the fixes stamped as if the receiver's lag were 60 ms shorter than it is (an autopilot's assumed lag
+    # for another receiver): each fix is valid 60 ms before its stamp. With the lag state the filter finds
+    # the 60 ms in the survey's turns; held at zero, it averages a·60 ms as if it were noise
+    import dataclasses
+
+    errs, lags = {}, {}
+    for label, kw in (("learnt", {}), ("held", LAG_HELD)):
+        r = _runner(world, ("airspeed-dr",), **kw)
+        r.stream = dataclasses.replace(r.stream, gnss_t_valid_s=r.stream.gnss_t_valid_s + 0.06)
+        errs[label] = _velocity_rms_error(world, r, "airspeed-dr")
+        x = r.filters["airspeed-dr"].x
+        assert x is not None
+        lags[label] = x.gnss_lag_s
+    assert lags["held"] == 0.0
+    assert lags["learnt"] == pytest.approx(0.06, abs=0.015), lags
+    assert errs["learnt"] < 0.85 * errs["held"], errs
 
 
 def test_port_faults_take_the_gappy_path_and_all_lost_falls_back(world: dict[str, Any]) -> None:

@@ -41,6 +41,7 @@ def _state(rng: np.random.Generator) -> NavState:
     x.b_baro_m = float(rng.normal(0.0, 3.0))
     x.b_gnss_ned = rng.normal(0.0, 1.0, 3)
     x.aero = np.array([0.01, -0.01, 1.03, 0.004, 0.95, 0.9]) + rng.normal(0.0, 0.01, len(AERO_PARAMS))
+    x.gnss_lag_s = float(rng.normal(0.0, 0.05))
     return x
 
 
@@ -62,6 +63,8 @@ MODELS = [
     GnssPosition(0.7, 1.0),
     GnssVelocity(0.2),
     GnssVelocity(0.2, horizontal_only=True),
+    GnssVelocity(0.2, accel_ned_m_s2=np.array([3.1, -4.2, 0.7])),  # the latency error's a·lag
+    GnssVelocity(0.2, horizontal_only=True, accel_ned_m_s2=np.array([-2.0, 5.5, 0.3])),
     InsWindowFix(3.0, 0.8),
     BaroAltitude(50.0, 1.0),
     MagField(np.array([20.1, -4.9, 46.5]), 1.5),

@@ -205,8 +205,12 @@ class NavConfig:
     gnss_latency_s: float = 0.1
     # how well that lag is known: the autopilots assume 110-120 ms for u-blox M8/M9 ("based on flight logs",
     # ArduPilot AP_GPS_UBLOX::get_lag; PX4 EKF2_GPS_DELAY), older parts 220 ms, and the serial link and the
-    # receiver's load move it by tens of ms: ±60 ms uniform about the assumed lag, 1σ = 0.06/√3 s
+    # receiver's load move it by tens of ms: ±60 ms uniform about the assumed lag, 1σ = 0.06/√3 s. That error
+    # is the same for every fix: the prior of a state (``lag``), not noise per fix
     gnss_latency_sigma_s: float = 0.035
+    # what moves from fix to fix about it: the receiver's solution time and the autopilot's serial read loop
+    # (a u-blox NAV-PVT of 100 bytes takes 26 ms at 38,400 baud; its arrival moves by a fraction of that)
+    gnss_jitter_sigma_s: float = 0.015
     gnss_pos_sigma_ne_m: float = 0.7
     gnss_pos_sigma_d_m: float = 1.0
     gnss_vel_sigma_m_s: float = 0.2
@@ -362,7 +366,7 @@ class NavFilter:
         self._next_aid: dict[str, float] = {}
         self._last_rejected_s: dict[str, float] = {}
         self._consider = np.zeros(N_ERR, dtype=bool)
-        for k in ("wind", "bm", "baro", "gnss", "aero"):
+        for k in ("wind", "bm", "baro", "gnss", "aero", "lag"):
             self._consider[IDX[k]] = True
         self._wind_live = self._consider.copy()
         self._wind_live[IDX["wind"]] = False
@@ -429,6 +433,7 @@ class NavFilter:
 
     def health(self) -> dict[str, Any]:
         """Mode, aiding state and counters (the service's status line; the benchmark's report)."""
+        lag = IDX["lag"].start
         return {
             "mode": self.mode,
             "initialised": self.initialised,
@@ -444,6 +449,9 @@ class NavFilter:
             # the compass swing: samples learnt, and whether its correction is applied yet
             "compass_deviation": None if self.mag_deviation is None else {
                 "samples": self.mag_deviation.n, "applied": self.mag_deviation.ready},
+            # the receiver's latency the fixes' stamps miss (true − assumed), as learnt in the turns, and its 1σ
+            "gnss_lag_error_ms": None if self.x is None else [
+                round(1e3 * self.x.gnss_lag_s, 1), round(1e3 * math.sqrt(max(self.P[lag, lag], 0.0)), 1)],
         }  # fmt: skip
 
     # -------------------------------------------------------------------------------- initialise
@@ -478,6 +486,7 @@ class NavFilter:
         sig[IDX["gnss"]] = (n.gnss_sigma_ne_m, n.gnss_sigma_ne_m, n.gnss_sigma_d_m)
         sig[IDX["gust"]] = n.gust_sigma_m_s
         sig[IDX["aero"]] = [AERO_PRIOR[k][1] for k in AERO_PARAMS]
+        sig[IDX["lag"]] = self.config.gnss_latency_sigma_s
         self.engine = EkfEngine(np.diag(sig**2))
         self.t_s = t_s
         self._t_init_s = t_s
@@ -715,14 +724,15 @@ class NavFilter:
         past = self._buffered(t_valid_s)
         v = np.asarray(v_ned, float)
         horizontal = not math.isfinite(float(v[2]))  # no vertical speed (MAVLink's GPS_RAW_INT)
-        # a fix whose time of validity is off by the lag's error: off by v·δt in position, a·δt in velocity
+        # a fix whose time of validity is off by the lag's error reads v·δt off in position, a·δt in velocity:
+        # the lag state takes the error common to every fix, the jitter about it is noise of each
         at = past if past is not None else self.x
         a_ned = dcm_from_quat(self.x.q_nb) @ self.inputs.f_b + np.array([0.0, 0.0, G0_M_S2])
-        vel_model = GnssVelocity(c.gnss_vel_sigma_m_s, horizontal, c.gnss_latency_sigma_s * a_ned)
+        vel_model = GnssVelocity(c.gnss_vel_sigma_m_s, horizontal, c.gnss_jitter_sigma_s * a_ned, a_ned)
         vel = self._fuse(Measurement(t_valid_s, v[:2] if horizontal else v, vel_model), past)
         s_ne, s_d = self._gnss_scale
         pos_model = GnssPosition(c.gnss_pos_sigma_ne_m * s_ne, c.gnss_pos_sigma_d_m * s_d,
-                                 c.gnss_latency_sigma_s * at.v_ned)  # fmt: skip
+                                 c.gnss_jitter_sigma_s * at.v_ned)  # fmt: skip
         pos = self._fuse(
             Measurement(t_valid_s, np.asarray(p_ned, float), pos_model),
             past,

@@ -62,6 +62,9 @@ class ProcessNoise:
     gnss_sigma_ne_m: float = 1.5
     gnss_sigma_d_m: float = 2.5
     gnss_tau_s: float = 100.0
+    # the receiver's latency error (a state): it moves only with the receiver's load and its link, by a few ms
+    # over a flight
+    gnss_lag_s_per_sqrt_s: float = 1.0e-4
     # turbulence: MIL-F-8785C low-altitude light-to-moderate intensities (σ_u,v ≈ 1.5, σ_w ≈ 1 m/s at
     # 100 m) and correlation times L/V (L_u ≈ 250 m at 18 m/s; L_w = h ≈ 100 m)
     gust_sigma_m_s: tuple[float, float, float] = (1.5, 1.5, 1.0)
@@ -87,6 +90,7 @@ class InsProcess:
         q[IDX["bm"]] = n.mag_bias_ut_s**2
         q[IDX["baro"]] = n.baro_m_s**2
         q[IDX["aero"]] = np.square(n.aero_per_s)
+        q[IDX["lag"]] = n.gnss_lag_s_per_sqrt_s**2
         q[IDX["gnss"]] = 2.0 / n.gnss_tau_s * np.square([n.gnss_sigma_ne_m, n.gnss_sigma_ne_m, n.gnss_sigma_d_m])
         self._gust_rate = 1.0 / np.asarray(n.gust_tau_s)
         self.wind_height_rate_scale = 0.0  # > 0: wind noise × (1 + scale·|ḣ|), EKF2/3's WIND_PSCALE

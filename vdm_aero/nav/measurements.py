@@ -103,9 +103,10 @@ def _diag(sigmas: tuple[float, ...] | F64Array) -> F64Array:
 # --------------------------------------------------------------------------------------------- GNSS
 @dataclass(frozen=True)
 class GnssPosition:
-    """GNSS position in the local NED frame [m] = p + the receiver's correlated error (antenna at the IMU);
-    the σ here is its white part. ``timing_ned_m``: the position error of a fix whose time of validity is
-    off by 1σ of the receiver's latency (σ_lag·v [m]), a rank-one term along the track."""
+    """GNSS position in the local NED frame [m] = p + the receiver's correlated error − v·lag (antenna at the
+    IMU; a fix stamped t is valid at t − lag, the latency error the filter estimates); the σ here is its
+    white part. ``timing_ned_m``: the position error of a fix whose arrival jitters by 1σ about the lag
+    (σ_jitter·v [m]), a rank-one term along the track."""
 
     sigma_ne_m: float
     sigma_d_m: float
@@ -113,12 +114,14 @@ class GnssPosition:
     name: str = "gnss_pos"
 
     def evaluate(self, x: NavState) -> F64Array:
-        return x.p_ned + x.b_gnss_ned
+        return x.p_ned + x.b_gnss_ned - x.v_ned * x.gnss_lag_s
 
     def jacobian(self, x: NavState) -> F64Array:
         h = np.zeros((3, N_ERR))
         h[:, IDX["p"]] = np.eye(3)
         h[:, IDX["gnss"]] = np.eye(3)
+        h[:, IDX["v"]] = -x.gnss_lag_s * np.eye(3)
+        h[:, IDX["lag"].start] = -x.v_ned
         return h
 
     def covariance(self) -> F64Array:
@@ -151,12 +154,14 @@ class InsWindowFix:
 
 @dataclass(frozen=True)
 class GnssVelocity:
-    """GNSS velocity NED [m/s]; ``horizontal_only``: N and E (MAVLink's GPS_RAW_INT has no vertical speed).
-    ``timing_ned_m_s``: as :class:`GnssPosition`'s, σ_lag·a [m/s] along the acceleration."""
+    """GNSS velocity NED [m/s] = v − a·lag (``accel_ned_m_s2``: the acceleration over ground [m/s²] at the fix;
+    the lag as :class:`GnssPosition`'s); ``horizontal_only``: N and E (MAVLink's GPS_RAW_INT has no vertical
+    speed). ``timing_ned_m_s``: as :class:`GnssPosition`'s, σ_jitter·a [m/s] along the acceleration."""
 
     sigma_m_s: float
     horizontal_only: bool = False
     timing_ned_m_s: F64Array | None = None
+    accel_ned_m_s2: F64Array | None = None
     name: str = "gnss_vel"
 
     @property
@@ -164,11 +169,16 @@ class GnssVelocity:
         return 2 if self.horizontal_only else 3
 
     def evaluate(self, x: NavState) -> F64Array:
-        return x.v_ned[: self._n].copy()
+        v = x.v_ned[: self._n]
+        if self.accel_ned_m_s2 is None:
+            return v.copy()
+        return v - self.accel_ned_m_s2[: self._n] * x.gnss_lag_s
 
     def jacobian(self, x: NavState) -> F64Array:
         h = np.zeros((self._n, N_ERR))
         h[:, IDX["v"]] = np.eye(3)[: self._n]
+        if self.accel_ned_m_s2 is not None:
+            h[:, IDX["lag"].start] = -self.accel_ned_m_s2[: self._n]
         return h
 
     def covariance(self) -> F64Array:

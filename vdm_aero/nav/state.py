@@ -11,7 +11,11 @@ Nominal state (SI, NED navigation frame about a local origin, FRD body frame):
 * ``b_baro_m`` barometric altitude offset [m] (weather and the ISA deviation);
 * ``b_gnss_ned`` the GNSS receiver's slowly varying position error [m] (a Gauss–Markov process: without
   it the filter would average correlated fixes as if independent and claim decimetres);
-* ``aero`` the model correction parameters :data:`AERO_PARAMS`.
+* ``aero`` the model correction parameters :data:`AERO_PARAMS`;
+* ``gnss_lag_s`` the error of the receiver latency the fixes' times of validity assume [s] (true − assumed):
+  a fix stamped t is valid at t − lag, so it reads p − v·lag and v − a·lag. The lag is fixed for a receiver
+  and its link within tens of ms; treated as white noise per fix, it is averaged as if it were independent,
+  and through every turn its a·lag pulls roll, pitch and heading (the harsh world's ``gnss-latency``).
 
 The error state δx (:data:`N_ERR` components) is additive for every block except attitude, whose error
 is a body-frame rotation vector: q = q̂ ⊗ exp(δθ), the ⊕ of :mod:`vdm_aero.rotation`.
@@ -63,9 +67,10 @@ IDX: Final = {
     "gnss": _block(22, 3),
     "gust": _block(25, 3),
     "aero": _block(28, len(AERO_PARAMS)),
+    "lag": _block(28 + len(AERO_PARAMS), 1),
 }
 """Error-state slices by block name."""
-N_ERR: Final = 28 + len(AERO_PARAMS)
+N_ERR: Final = 29 + len(AERO_PARAMS)
 AERO_INDEX: Final = {name: 28 + i for i, name in enumerate(AERO_PARAMS)}
 """Error-state index of each aero parameter."""
 AERO_SLOT: Final = {name: i for i, name in enumerate(AERO_PARAMS)}
@@ -87,6 +92,7 @@ class NavState:
     b_gnss_ned: F64Array = field(default_factory=lambda: np.zeros(3))
     gust_ned: F64Array = field(default_factory=lambda: np.zeros(3))
     aero: F64Array = field(default_factory=lambda: np.array([AERO_PRIOR[k][0] for k in AERO_PARAMS]))
+    gnss_lag_s: float = 0.0
 
     @property
     def air_motion_ned(self) -> F64Array:
@@ -97,7 +103,7 @@ class NavState:
         return NavState(
             self.p_ned.copy(), self.v_ned.copy(), self.q_nb.copy(), self.b_gyro_b.copy(), self.b_accel_b.copy(),
             self.wind_ned.copy(), self.b_mag_b_ut.copy(), self.b_baro_m, self.b_gnss_ned.copy(),
-            self.gust_ned.copy(), self.aero.copy(),
+            self.gust_ned.copy(), self.aero.copy(), self.gnss_lag_s,
         )  # fmt: skip
 
     def plus(self, dx: F64Array) -> NavState:
@@ -120,6 +126,7 @@ class NavState:
         self.b_gnss_ned += dx[IDX["gnss"]]
         self.gust_ned += dx[IDX["gust"]]
         self.aero += dx[IDX["aero"]]
+        self.gnss_lag_s += float(dx[IDX["lag"]][0])
 
     def minus(self, other: NavState) -> F64Array:
         """x ⊖ y: the error state δx with y ⊕ δx = x."""
@@ -137,5 +144,6 @@ class NavState:
                 self.b_gnss_ned - other.b_gnss_ned,
                 self.gust_ned - other.gust_ned,
                 self.aero - other.aero,
+                [self.gnss_lag_s - other.gnss_lag_s],
             ]
         )
