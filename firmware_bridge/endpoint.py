@@ -229,6 +229,13 @@ class MavEndpoint:
                 confirm()
         return out
 
+    def read_horizon(self) -> float:
+        """The monotonic time [s] before which everything that reached this host has been decoded: a port frame
+        still missing values by then is partial; after it, its values may be waiting in a backlog (a busy
+        service, a second route's turn). A link that cannot tell (a test double) says now."""
+        horizon: Callable[[], float] | None = getattr(self.transport, "read_horizon", None)
+        return horizon() if horizon is not None else time.monotonic()
+
     def _arrival(self, marks: list[tuple[int, float]], end: int) -> float:
         """When the datagram holding the frame that ends at byte ``end`` of this read arrived."""
         k = bisect.bisect_left(marks, end, key=lambda m: m[0])

@@ -789,7 +789,9 @@ class CompanionService:
             self._count_error("periodic", e)
 
     def _upkeep(self, now: float) -> None:
-        self.decoder.expire_ports(now)
+        # judged on the link's read horizon, not the clock: the rest of a frame that came in time may still wait
+        # in the socket while the service was busy (a relay's second route splits every read in two)
+        self.decoder.expire_ports(min(now, self.ep.read_horizon()))
         self._report_fdi()
         if self._due("heartbeat", now, HEARTBEAT_S):
             hb = self.ep.mav.heartbeat_encode(mavlink2.MAV_TYPE_ONBOARD_CONTROLLER, mavlink2.MAV_AUTOPILOT_INVALID,

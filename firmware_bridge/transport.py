@@ -92,6 +92,11 @@ class Transport(Protocol):
         reached this host); empty when the link cannot tell."""
         ...
 
+    def read_horizon(self) -> float:
+        """The monotonic time [s] before which everything that reached this host has been returned by ``recv``:
+        what has not come by then is missing, not waiting in a backlog the service has yet to read."""
+        ...
+
     def send(self, data: bytes) -> None: ...
 
     def recv(self, timeout_s: float) -> bytes: ...
@@ -133,6 +138,9 @@ class UdpTransport:
         self._queue: deque[tuple[tuple[str, int], bytes, float]] = deque()  # (sender, datagram, arrival [s])
         self.last_sender: tuple[str, int] | None = None
         self._arrivals: list[tuple[int, float]] = []
+        # the read horizon (read_horizon): when the socket was last found empty, or the arrival of the last
+        # datagram read when a bounded drain left the rest in the socket
+        self._horizon = time.monotonic()
         with contextlib.suppress(OSError):  # not Linux: no stamps, the recv time stands for the arrival
             self._sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
         if url.scheme == "udpin":
@@ -171,11 +179,17 @@ class UdpTransport:
         if not self._queue:
             readable, _, _ = select.select([self._sock], [], [], max(timeout_s, 0.0))
             if not readable:
+                self._horizon = time.monotonic()
                 return b""
-            while len(self._queue) < RECV_QUEUE_MAX:
+            while True:
+                if len(self._queue) >= RECV_QUEUE_MAX:
+                    self._horizon = self._queue[-1][2]  # the rest waits in the socket: it came later
+                    break
+                tried_at = time.monotonic()
                 try:
                     data, anc, _flags, addr = self._sock.recvmsg(RECV_BYTES, 64)
                 except (BlockingIOError, ConnectionRefusedError):
+                    self._horizon = tried_at  # empty: everything that came before this has been read
                     break
                 self._queue.append(((str(addr[0]), int(addr[1])), data, self._arrival(anc)))
         if not self._queue:
@@ -193,6 +207,11 @@ class UdpTransport:
     @property
     def arrivals(self) -> list[tuple[int, float]]:
         return self._arrivals
+
+    def read_horizon(self) -> float:
+        """Datagrams still queued (another sender's turn: :meth:`recv` returns one sender's run at a time) came
+        after every datagram returned before them; with none queued, the socket's own horizon."""
+        return self._queue[0][2] if self._queue else self._horizon
 
     def _arrival(self, anc: list[tuple[int, int, bytes]]) -> float:
         """The monotonic time a datagram reached the kernel, from its ``SO_TIMESTAMPNS`` (wall-clock) stamp; the
@@ -228,6 +247,7 @@ class _StreamTransport:
         self._backoff = _Backoff()
         self._handle: Any = None
         self._ever_connected = False
+        self._horizon = time.monotonic()
 
     @property
     def connected(self) -> bool:
@@ -236,6 +256,11 @@ class _StreamTransport:
     @property
     def arrivals(self) -> list[tuple[int, float]]:
         return []  # a byte stream has no arrival stamps: the endpoint takes its recv time
+
+    def read_horizon(self) -> float:
+        """When a read last left nothing behind (a wait that timed out, or fewer bytes than asked for); a read
+        that filled its buffer leaves a backlog, and the horizon stays where it was."""
+        return self._horizon
 
     def _open(self) -> Any:  # returns the handle, or raises OSError
         raise NotImplementedError
@@ -282,12 +307,20 @@ class _StreamTransport:
     def recv(self, timeout_s: float) -> bytes:
         if not self._ensure():
             time.sleep(min(max(timeout_s, 0.0), self._backoff.wait_s()))
+            self._horizon = time.monotonic()  # no link: nothing is waiting
             return b""
+        asked_at = time.monotonic()
         try:
-            return self._read(timeout_s)
+            data = self._read(timeout_s)
         except (OSError, EOFError):
             self._drop()
+            self._horizon = time.monotonic()
             return b""
+        if not data:
+            self._horizon = time.monotonic()
+        elif len(data) < RECV_BYTES:
+            self._horizon = asked_at  # what had come by the time of asking was all returned
+        return data
 
     def close(self) -> None:
         if self._handle is not None:

@@ -228,6 +228,78 @@ def test_duplicated_port_values_never_split_a_port_frame(
         svc.transport.close()
 
 
+def test_the_udp_read_horizon_stops_at_the_oldest_datagram_not_yet_returned(udp: dict[str, socket.socket]) -> None:
+    """Two senders interleaved: ``recv`` returns one sender's run, and the horizon is the arrival of the
+    datagram left queued, however long the reader took; once all is read and the socket is found empty, it is
+    the time of that look."""
+    from firmware_bridge.transport import open_transport
+
+    link = open_transport("udpin://127.0.0.1:0")
+    try:
+        # the kernel stamps datagrams on arrival a moment after the first socket asks (see above): warm up
+        udp["ap"].sendto(b"warm", link.local_address)
+        _wait(lambda: link.recv(0.05) == b"warm", 2.0, "the first datagram")
+        time.sleep(0.05)
+        sent_at = time.monotonic()
+        udp["ap"].sendto(b"a1", link.local_address)
+        udp["route2"].sendto(b"b1", link.local_address)
+        udp["ap"].sendto(b"a2", link.local_address)
+        time.sleep(0.2)  # the reader busy elsewhere
+        read_at = time.monotonic()
+        assert link.recv(0.5) == b"a1"
+        assert sent_at <= link.read_horizon() <= sent_at + 0.05 < read_at - 0.1  # b1 waits: it came then
+        assert link.recv(0.5) == b"b1" and link.recv(0.5) == b"a2"
+        # all returned: the horizon is when the first read found the socket empty behind the three
+        assert read_at <= link.read_horizon() <= read_at + 0.05
+        before = time.monotonic()
+        assert link.recv(0.01) == b""
+        assert before <= link.read_horizon() <= time.monotonic()
+    finally:
+        link.close()
+
+
+def test_a_backlog_never_splits_a_port_frame(
+    design_deim12: dict[str, Path], models: Any, tmp_path: Path, udp: dict[str, socket.socket]
+) -> None:
+    """A frame's values all came within a millisecond by two routes, while the service was busy four times the
+    frame timeout: read one datagram at a time (each route's turn), with the loop's upkeep between reads, the
+    frame is complete (it was closed as partial when the timeout was judged on the clock). A frame whose last
+    value never comes is still closed partial once the link has been read past its timeout."""
+    from firmware_bridge.service import CompanionService
+
+    cfg = _service_config(tmp_path, design_deim12, "backlog", {})
+    svc = CompanionService(cfg, out=io.StringIO(), models=models)
+    timeout_s = cfg.ports.frame_timeout_s
+
+    def serve(seconds: float) -> None:  # the service's loop: poll, dispatch, upkeep
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            for m, t_in in zip(svc.ep.poll(0.01), svc.ep.arrived, strict=True):
+                svc._dispatch(m, t_in)
+            svc._upkeep(time.monotonic())
+
+    try:
+        to = ("127.0.0.1", svc.transport.local_address[1])
+        ap = _signer(AUTOPILOT)
+        udp["ap"].sendto(_pack(ap, _vehicle_heartbeat(ap)), to)
+        serve(0.2)
+        for name in svc.port_names:
+            f = _pack(ap, ap.named_value_float_encode(30_000, name.encode(), -40.0))
+            udp["ap"].sendto(f, to)
+            udp["route2"].sendto(f, to)
+        time.sleep(4.0 * timeout_s)
+        serve(0.3)
+        counts = svc.assembler.counts
+        assert (counts["complete"], counts["partial"]) == (1, 0), counts
+        assert svc.ep.duplicate_frames == len(svc.port_names)
+        for name in svc.port_names[:-1]:  # the next frame's last port never comes
+            udp["ap"].sendto(_pack(ap, ap.named_value_float_encode(30_010, name.encode(), -40.0)), to)
+        serve(4.0 * timeout_s)
+        assert (counts["complete"], counts["partial"]) == (1, 1), counts
+    finally:
+        svc.transport.close()
+
+
 @pytest.mark.parametrize("signing", [False, True], ids=["unsigned-link", "signing-required"])
 def test_outputs_go_only_to_the_autopilots_address(
     design_deim12: dict[str, Path], models: Any, tmp_path: Path, udp: dict[str, socket.socket], signing: bool
