@@ -7,9 +7,8 @@
   ports (they then go to the gappy model) and counted. A value older than the open frame, or than the last
   closed one, is late (a straggler, or a frame a buffering radio sends again a second later): dropped and
   counted, so it never closes the open frame early nor opens one of its own; so is a value of the frame just
-  closed (a copy a second route delivered after the endpoint's duplicate window, or a straggler of a frame the
-  timeout closed); after an autopilot reboot
-  (:meth:`PortAssembler.restart`) the times start again.
+  closed (a straggler of a frame the timeout closed, or a copy the endpoint's duplicate check let through);
+  after an autopilot reboot (:meth:`PortAssembler.restart`) the times start again.
 * :class:`AutopilotClock`: the autopilot's boot time → a continuous filter time across autopilot reboots,
   and TIMESYNC: the offset between the autopilot's clock and ours.
 """
@@ -76,7 +75,7 @@ class PortAssembler:
         out = []
         if self._ms is not None:
             stale = time_boot_ms < self._ms - self.merge_ms
-        else:  # no frame open: a value of the frame just closed (a copy, a straggler) must not open one of its own
+        else:  # no frame open: a value of the frame just closed (a straggler, a copy) must not open one of its own
             stale = self._last_ms is not None and time_boot_ms <= self._last_ms + self.merge_ms
         if stale:
             self.counts["late"] += 1  # a straggler of a closed frame, or one sent again late

@@ -140,8 +140,9 @@ def test_a_port_value_sent_again_late_never_splits_a_frame() -> None:
     assert fr.complete and list(fr.dp_pa) == [3.0, 4.0]
     assert a.add(1000, "P01", 2.0, 1.1) == []  # ... and with no frame open
     assert a.counts == {"complete": 2, "partial": 0, "unknown_name": 0, "late": 2}
-    # a copy of a value of the frame just closed (a second route, past the endpoint's duplicate window), or a
-    # straggler one millisecond after it: late, not a frame of its own that the next frame would close partial
+    # values of the frame just closed (a straggler of a frame the timeout closed, a copy the endpoint's duplicate
+    # check let through), one a millisecond after its stamp: late, not a frame of its own that the next frame
+    # would close partial, nor a second copy of the frame
     assert a.add(2000, "P01", 4.0, 1.15) == [] and a.add(2001, "P00", 3.0, 1.16) == []
     a.add(2010, "P00", 7.0, 1.2)
     (fr,) = a.add(2010, "P01", 8.0, 1.2)
