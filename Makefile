@@ -33,7 +33,7 @@ typecheck: $(STAMP)
 # two workers: the end-to-end tests wait on real-time flights while the other core computes; a module stays on
 # one worker (its fixtures are built once), session fixtures are built once for both (tests/conftest.py)
 test: lint typecheck
-	$(BIN)/python -m pytest -q -n 2 --dist loadscope
+	$(BIN)/python -m pytest -q -n 2 --dist loadscope --no-loadscope-reorder
 
 bench: $(STAMP)
 	mkdir -p $(OUT)/bench

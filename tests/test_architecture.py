@@ -142,3 +142,14 @@ def test_log_formats_and_the_magnetic_model_behind_one_door_each() -> None:
         if "DFReader" in p.read_text() and p.name != "__init__.py"
     ]
     assert [str(p.relative_to(ROOT)) for p in dfreader] == ["firmware_bridge/logs/dataflash.py"], dfreader
+
+
+def test_the_real_time_flights_named_first_exist_and_make_test_keeps_their_order() -> None:
+    # a renamed flight module would silently fall back to the end of the queue, where one worker took the last
+    # flights in a row while the other idled; xdist's reordering by test count would undo the order altogether
+    from tests.conftest import REAL_TIME_FIRST
+
+    missing = [name for name in REAL_TIME_FIRST if not (ROOT / "tests" / name).is_file()]
+    assert not missing, missing
+    test_rule = (ROOT / "Makefile").read_text().split("\ntest:", 1)[1].split("\n\n", 1)[0]
+    assert "--dist loadscope" in test_rule and "--no-loadscope-reorder" in test_rule, test_rule
