@@ -219,7 +219,11 @@ class AirfoilFlow:
         ds_samples = np.diff(t) * 2.0 * V / c
         sub = np.maximum(1, np.ceil(ds_samples / MAX_STEP_SEMICHORDS).astype(np.int64))
         idx = np.concatenate([[0], np.cumsum(sub)])  # position of each caller sample on the fine grid
-        frac = np.concatenate([np.arange(k) / k + i for i, k in enumerate(sub)] + [[len(t) - 1.0]])
+        # sample i's sub-steps at i + j/k_i, j < k_i (vectorised: the same two float operations per point as
+        # the per-sample aranges it replaces, which took a quarter of the discovery workflow's time)
+        start = np.repeat(idx[:-1], sub)
+        k_rep = np.repeat(sub, sub)
+        frac = np.append((np.arange(idx[-1]) - start) / k_rep + np.repeat(np.arange(len(sub)), sub), len(t) - 1.0)
         tf_ = np.interp(frac, np.arange(len(t)), t)
         full = self._march_fine(
             tf_,
