@@ -2,7 +2,8 @@
 autopilot's EKF origin all flight and switches EKF3's source set on GNSS loss and back
 (``outputs.solution: odometry``, ``outputs.source_switch``); the mock judges every ODOMETRY by ArduPilot's rules
 (sim/sitl/extnav_judge.py) and fuses what EKF3 would. Survey seed 1, a 60 s outage, as the GPS_INPUT route's
-end-to-end test flies it."""
+end-to-end test flies it, in the product mode ``vdm`` (the shipped config's): its air-data sources all fused
+and none excluded in a healthy flight."""
 
 from __future__ import annotations
 
@@ -20,7 +21,9 @@ HOLD_S = 10.0  # outputs.source_switch.gnss_hold_s (the default)
 def test_the_autopilot_flies_the_outage_on_the_services_odometry(
     design_deim12: dict[str, Path], tmp_path: Path
 ) -> None:
-    run = ServiceRun(design_deim12["data"], design_deim12["model"], None, mode="vdm-deim", scenario="survey",
+    # the product mode (pitot, port air data, the DEIM force model, the air-data FDI, the wind relearnt) through
+    # the service: the GPS_INPUT route's end-to-end tests fly vdm-deim, whose in-process benchmark they match
+    run = ServiceRun(design_deim12["data"], design_deim12["model"], None, mode="vdm", scenario="survey",
                      seed=1, outage_s=60.0, speed=4.0, solution="odometry",
                      source_switch=(("gnss_set", 1), ("extnav_set", 2)))  # fmt: skip
     res = run_service_sitl(run, tmp_path / "odometry", mag_field_ned_ut=site_mag_field_ut(run))
@@ -46,3 +49,10 @@ def test_the_autopilot_flies_the_outage_on_the_services_odometry(
     end = mock["outage_end_errors"][0]
     own = score_service(res)["final_error_m"]
     assert abs(end["with_service_m"] - own) <= 0.25 * own + 3.0, (end, own)
+    # the product mode fused each of its air-data sources all flight, and the FDI excluded none of them in
+    # this healthy flight (a false alarm would show as an exclusion)
+    health = svc["health"]
+    up = health["updates"]
+    assert health["mode"] == "vdm"
+    assert min(up.get(k, 0) for k in ("pitot", "ports_airdata", "aero_force")) >= 1000, up
+    assert health["airdata_excluded"] == [] and not [k for k in up if k.startswith("fdi_") and "excluded" in k], up
