@@ -31,7 +31,8 @@ typecheck: $(STAMP)
 	$(BIN)/mypy
 
 # two workers: the end-to-end tests wait on real-time flights while the other core computes; a module stays on
-# one worker (its fixtures are built once), session fixtures are built once for both (tests/conftest.py)
+# one worker (its fixtures are built once), session fixtures are built once for both, and the real-time
+# flights start first, in the order tests/conftest.py's REAL_TIME_FIRST gives (loadscope's own reordering off)
 test: lint typecheck
 	$(BIN)/python -m pytest -q -n 2 --dist loadscope --no-loadscope-reorder
 
