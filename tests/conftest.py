@@ -26,8 +26,8 @@ def require_tool(tool: str, package: str) -> str:
     return path
 
 
-# The modules that fly the mock and the service in real time (×4), longest first; the one that builds
-# ``survey_service_run`` leads, so that its two other users find the flight built rather than wait for it.
+# The modules that fly the mock and the service in real time (×4), then the longest CPU-bound one; the module
+# that builds ``survey_service_run`` leads, so that its two other users find the flight built rather than wait.
 # ``make test`` runs pytest-xdist's loadscope without its reordering by test count: that order put these
 # one-test modules last, and a worker takes another module while it has ≤ 2 tests pending, so one worker took
 # the last three flights in a row while the other stood idle (215 s of a 640 s run, 2026-11-28).
