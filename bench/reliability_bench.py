@@ -168,10 +168,10 @@ RELAY_CASES: dict[str, Any] = {
 
 def bench_relay_cases(repeats: int) -> dict[str, Any]:
     """Issue 23's relay cases one by one (``tests/test_service_relay_e2e.py`` runs them together): the service
-    flight of the end-to-end test (survey seed 1, 60 s outage, vdm-deim) through ``sim/sitl/udp_relay.py`` with
-    one impairment each. Per case: the outage-end error against the clean run (bar ≤ 1.2×), the GPS_INPUT
-    ArduPilot's rules (the mock's judge) used in the outage (bar ≥ 90 % of 5 Hz × its length), and the bytes
-    the service sent to the stranger (bar 0)."""
+    flight of the end-to-end test on survey seed 1 (the test flies seed 0; 60 s outage, vdm-deim) through
+    ``sim/sitl/udp_relay.py`` with one impairment each. Per case: the outage-end error against the clean run
+    (bar ≤ 1.2×), the GPS_INPUT ArduPilot's rules (the mock's judge) used in the outage (bar ≥ 90 % of 5 Hz × its
+    length), and the bytes the service sent to the stranger (bar 0)."""
     from sim.sitl.udp_relay import Impairments, UdpRelay
     from vdm_aero_cli.service_sitl import run_service_sitl, score_service
 

@@ -51,7 +51,7 @@ def golden_flight(design_deim12: dict[str, Path], tmp_path_factory: pytest.TempP
 
 
 def test_mock_tlog_replay_matches_the_benchmark_per_mode(survey_service_run: dict[str, Any], tmp_path: Path) -> None:
-    """The tlog the mock wrote while the service flew survey seed 1 (60 s outage), replayed with every mode but
+    """The tlog the mock wrote while the service flew survey seed 0 (60 s outage), replayed with every mode but
     vdm-deim-nn: each mode's error at the outage's end is the in-process benchmark's on the same flight."""
     res, ref = survey_service_run["res"], survey_service_run["ref"]
     a, b = res["outage"]

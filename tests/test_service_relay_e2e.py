@@ -1,4 +1,4 @@
-"""End to end through a link as real links are (issue 23): the flight of ``survey_service_run`` (survey seed 1,
+"""End to end through a link as real links are (issue 23): the flight of ``survey_service_run`` (survey seed 0,
 60 s outage, vdm-deim) flown again with a relay between the mock and the service that sends every datagram by
 two routes, sends some again 0.7–1.2 s late, and puts a stranger on the service's port (sim/sitl/udp_relay.py).
 Against the clean run: the outage-end error within 1.2×, the fixes ArduPilot's rules would use (the mock's
