@@ -100,7 +100,8 @@ def test_the_pair_tells_a_sensor_fault_from_a_wind_change() -> None:
     assert [(s, w) for _, s, w in ev] == [("force", "excluded")]
 
 
-def test_the_product_mode_relearns_the_wind_on_a_wind_event_and_scales_its_noise_with_the_height_rate() -> None:
+def test_the_product_mode_relearns_the_wind_on_a_wind_event_and_its_uncertainty_grows_with_the_height_changed(
+) -> None:  # fmt: skip
     from vdm_aero.nav.airdata_fdi import WIND_RELEARN_S
     from vdm_aero.nav.contracts import ImuIncrement
     from vdm_aero.nav.filter import MODES, WIND_PSCALE, WIND_RELEARN_SIGMA_M_S, NavConfig, NavFilter
@@ -115,10 +116,23 @@ def test_the_product_mode_relearns_the_wind_on_a_wind_event_and_scales_its_noise
     f.initialise(0.0, np.zeros(3), np.array([19.0, 0.0, 0.0]), f_b, mag)
     assert f.x is not None and f.engine is not None
     inc = ImuIncrement(np.zeros(3), f_b * 0.02, 0.02)
-    level = f.process.noise(f.x, inc)[w, w].diagonal().copy()
-    f.x.v_ned = np.array([19.0, 0.0, -4.0])  # climbing at 4 m/s
-    climbing = f.process.noise(f.x, inc)[w, w].diagonal()
+    # the ablation without the wind's gradient: EKF2/3's WIND_PSCALE, the wind's noise × (1 + 0.5·|ḣ|)
+    g = NavFilter("vdm-no-gradient", cfg)
+    g.initialise(0.0, np.zeros(3), np.array([19.0, 0.0, 0.0]), f_b, mag)
+    assert g.x is not None
+    level = g.process.noise(g.x, inc)[w, w].diagonal().copy()
+    g.x.v_ned = np.array([19.0, 0.0, -4.0])  # climbing at 4 m/s
+    climbing = g.process.noise(g.x, inc)[w, w].diagonal()
     np.testing.assert_allclose(climbing, level * (1.0 + WIND_PSCALE * 4.0) ** 2)
+    # the product mode carries the gradient as states instead: no scaled noise, and the horizontal wind's
+    # variance grows by (Δh·σ_G)² as it climbs (Φ's wind–gradient block), not at all in level flight
+    np.testing.assert_array_equal(f.process.noise(f.x, inc)[w, w].diagonal(), level)
+    p0 = f.engine.P.copy()
+    for v_d, dh in ((0.0, 0.0), (-4.0, 4.0 * 0.02)):
+        f.x.v_ned = np.array([19.0, 0.0, v_d])
+        phi = f.process.transition(f.x, inc)
+        grown = (phi @ p0 @ phi.T)[w, w].diagonal()[:2] - p0[w, w].diagonal()[:2]
+        np.testing.assert_allclose(grown, (dh * cfg.wind_gradient_sigma_per_s) ** 2, rtol=1e-6, atol=1e-13)
     # held in an outage until the air data agree it changed; then relearnt for WIND_RELEARN_S
     assert f._consider[w].all()
     f._relearn_wind(100.0)

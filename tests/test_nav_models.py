@@ -42,6 +42,7 @@ def _state(rng: np.random.Generator) -> NavState:
     x.b_gnss_ned = rng.normal(0.0, 1.0, 3)
     x.aero = np.array([0.01, -0.01, 1.03, 0.004, 0.95, 0.9]) + rng.normal(0.0, 0.01, len(AERO_PARAMS))
     x.gnss_lag_s = float(rng.normal(0.0, 0.05))
+    x.wind_gradient_ne_per_s = rng.normal(0.0, 0.01, 2)
     return x
 
 
@@ -116,7 +117,9 @@ def test_ins_transition_matches_finite_differences() -> None:
 
 def test_ins_transition_is_the_second_order_series_of_its_error_dynamics() -> None:
     """The block-by-block Φ equals I + FΔt + ½(FΔt)² with F assembled densely from the error dynamics of the
-    module docstring (δv̇ = −Ĉ[f×]δθ − Ĉδb_a, δθ̇ = −[ω×]δθ − δb_g, Gauss–Markov GNSS error and gust)."""
+    module docstring (δv̇ = −Ĉ[f×]δθ − Ĉδb_a, δθ̇ = −[ω×]δθ − δb_g, Gauss–Markov GNSS error and gust, the
+    horizontal wind following its gradient with height: δẇ_NE = −G·δv_D − v_D·δG)."""
+    from vdm_aero.atmosphere import G0_M_S2
     from vdm_aero.nav.ins import skew
     from vdm_aero.nav.state import IDX
     from vdm_aero.rotation import dcm_from_quat, quat_exp, quat_multiply
@@ -136,6 +139,10 @@ def test_ins_transition_is_the_second_order_series_of_its_error_dynamics() -> No
         f[IDX["theta"], IDX["bg"]] = -np.eye(3)
         f[IDX["gnss"], IDX["gnss"]] = -np.eye(3) / ins.noise_densities.gnss_tau_s
         f[IDX["gust"], IDX["gust"]] = -np.diag(1.0 / np.asarray(ins.noise_densities.gust_tau_s))
+        wind_ne = slice(IDX["wind"].start, IDX["wind"].start + 2)
+        vd_mid = x.v_ned[2] + 0.5 * dt * ((c @ f_b)[2] + G0_M_S2)  # the nominal v_D at mid-step
+        f[wind_ne, IDX["v"].start + 2] = -x.wind_gradient_ne_per_s
+        f[wind_ne, IDX["wg"]] = -vd_mid * np.eye(2)
         fdt = f * dt
         np.testing.assert_allclose(ins.transition(x, u), np.eye(N_ERR) + fdt + 0.5 * fdt @ fdt, rtol=0, atol=1e-13)
 

@@ -109,6 +109,8 @@ class ModeSpec:
     wind_relearn: bool = False
     # the magnetometer's soft-iron and motor deviation learnt while GNSS aids (vdm_aero.nav.mag_deviation)
     mag_deviation: bool = False
+    # the wind's gradient with height as states (vdm_aero.nav.state): the wind follows a climb or a descent
+    wind_gradient: bool = False
     description: str = ""
 
     def force_model(self, available: Collection[str]) -> str | None:
@@ -144,8 +146,9 @@ MODES: Final = {
         fdi=True,
         wind_relearn=True,
         mag_deviation=True,
-        description="the product: pitot + port air data + force model, air-data FDI, wind relearnt, "
-        "compass deviation learnt in flight",
+        wind_gradient=True,
+        description="the product: pitot + port air data + force model, air-data FDI, wind relearnt with its "
+        "gradient with height, compass deviation learnt in flight",
     ),
 }
 # The product mode with one part taken away, for the benchmark's ablation table (not offered to serve or
@@ -158,6 +161,8 @@ ABLATIONS: Final = {
     "vdm-no-pitot": replace(_VDM, pitot=False, description="ablation: vdm without the pitot"),
     "vdm-no-deviation": replace(_VDM, mag_deviation=False,
                                 description="ablation: vdm without the compass deviation learnt in flight"),
+    "vdm-no-gradient": replace(_VDM, wind_gradient=False,
+                               description="ablation: vdm without the wind's gradient with height (WIND_PSCALE)"),
 }  # fmt: skip
 
 
@@ -216,6 +221,9 @@ class NavConfig:
     gnss_vel_sigma_m_s: float = 0.2
     baro_sigma_m: float = 1.0
     mag_sigma_ut: float = 1.5
+    # the wind's gradient with height, d(w_N, w_E)/dh [1/s]: a power-law profile w ∝ h^α over open country
+    # (Hellmann exponent α 0.1–0.3, Stull 1988) has dw/dh = α·w/h, 0.005–0.025 /s for a 10 m/s wind at 120 m
+    wind_gradient_sigma_per_s: float = 0.01
     pitot_sigma_m_s: float = 0.8
     sideslip_sigma: float = 0.1
     force_sigma_m_s2: tuple[float, float, float] = (0.4, 0.4, 1.2)
@@ -366,7 +374,7 @@ class NavFilter:
         self._next_aid: dict[str, float] = {}
         self._last_rejected_s: dict[str, float] = {}
         self._consider = np.zeros(N_ERR, dtype=bool)
-        for k in ("wind", "bm", "baro", "gnss", "aero", "lag"):
+        for k in ("wind", "bm", "baro", "gnss", "aero", "lag", "wg"):
             self._consider[IDX[k]] = True
         self._wind_live = self._consider.copy()
         self._wind_live[IDX["wind"]] = False
@@ -375,8 +383,12 @@ class NavFilter:
         self.fdi = AirDataFdi() if self.spec.fdi else None
         self.wind_change = WindChangeDetector() if self.spec.wind_relearn else None
         self.mag_deviation = MagDeviation(config.mag_field_ned_ut) if self.spec.mag_deviation else None
-        if self.spec.wind_relearn:
+        # with the wind's gradient as states, the wind follows a climb or a descent and its covariance grows
+        # through Φ by the height changed times the gradient's σ: what EKF3's WIND_PSCALE stands in for
+        if self.spec.wind_relearn and not self.spec.wind_gradient:
             self.process.wind_height_rate_scale = WIND_PSCALE
+        if not self.spec.wind_gradient:
+            self.process.freeze_wind_gradient()
         # (t [s], V [m/s], σ_V [m/s], α [rad], the usable ports' mask as bytes)
         self._ports_speed: tuple[float, float, float, float, bytes] | None = None
         self.fallback = False
@@ -450,6 +462,9 @@ class NavFilter:
             "compass_deviation": None if self.mag_deviation is None else {
                 "samples": self.mag_deviation.n, "applied": self.mag_deviation.ready},
             # the receiver's latency the fixes' stamps miss (true − assumed), as learnt in the turns, and its 1σ
+            # the wind's change per 100 m of height (N, E) [m/s], as learnt (the modes that carry it)
+            "wind_gradient_m_s_per_100m": None if self.x is None or not self.spec.wind_gradient else [
+                round(100.0 * float(g), 2) for g in self.x.wind_gradient_ne_per_s],
             "gnss_lag_error_ms": None if self.x is None else [
                 round(1e3 * self.x.gnss_lag_s, 1), round(1e3 * math.sqrt(max(self.P[lag, lag], 0.0)), 1)],
         }  # fmt: skip
@@ -487,6 +502,7 @@ class NavFilter:
         sig[IDX["gust"]] = n.gust_sigma_m_s
         sig[IDX["aero"]] = [AERO_PRIOR[k][1] for k in AERO_PARAMS]
         sig[IDX["lag"]] = self.config.gnss_latency_sigma_s
+        sig[IDX["wg"]] = self.config.wind_gradient_sigma_per_s if self.spec.wind_gradient else 0.0
         self.engine = EkfEngine(np.diag(sig**2))
         self.t_s = t_s
         self._t_init_s = t_s

@@ -14,7 +14,8 @@ bias state absorbs the Earth rate.
 Error-state dynamics (body-frame attitude error, q = q̂ ⊗ exp(δθ)):
   δṗ = δv,  δv̇ = −Ĉ[f̂×]δθ − Ĉδb_a − Ĉn_a,  δθ̇ = −[ω̂×]δθ − δb_g − n_g,
   biases, wind, magnetometer and baro offsets and aero parameters: random walks; the GNSS position error:
-  first-order Gauss–Markov.
+  first-order Gauss–Markov; the horizontal wind follows its gradient with height G as the aircraft climbs or
+  descends, ẇ_NE = −G·v_D, so δẇ_NE = −G·δv_D − v_D·δG (the nominal v_D at mid-step, as the attitude).
 """
 
 from __future__ import annotations
@@ -65,6 +66,9 @@ class ProcessNoise:
     # the receiver's latency error (a state): it moves only with the receiver's load and its link, by a few ms
     # over a flight
     gnss_lag_s_per_sqrt_s: float = 1.0e-4
+    # the wind's gradient with height: the profile changes with the terrain and the time of day, over kilometres
+    # and tens of minutes: ~10 % of its prior (NavConfig.wind_gradient_sigma_per_s) in 10 minutes
+    wind_gradient_per_s_sqrt_s: float = 4.0e-5
     # turbulence: MIL-F-8785C low-altitude light-to-moderate intensities (σ_u,v ≈ 1.5, σ_w ≈ 1 m/s at
     # 100 m) and correlation times L/V (L_u ≈ 250 m at 18 m/s; L_w = h ≈ 100 m)
     gust_sigma_m_s: tuple[float, float, float] = (1.5, 1.5, 1.0)
@@ -73,6 +77,10 @@ class ProcessNoise:
 
 _I3 = np.eye(3)
 _I3.flags.writeable = False
+_I2 = np.eye(2)
+_I2.flags.writeable = False
+_W = slice(IDX["wind"].start, IDX["wind"].start + 2)  # the horizontal wind's rows
+_WG = IDX["wg"]
 
 
 class InsProcess:
@@ -91,6 +99,7 @@ class InsProcess:
         q[IDX["baro"]] = n.baro_m_s**2
         q[IDX["aero"]] = np.square(n.aero_per_s)
         q[IDX["lag"]] = n.gnss_lag_s_per_sqrt_s**2
+        q[IDX["wg"]] = n.wind_gradient_per_s_sqrt_s**2
         q[IDX["gnss"]] = 2.0 / n.gnss_tau_s * np.square([n.gnss_sigma_ne_m, n.gnss_sigma_ne_m, n.gnss_sigma_d_m])
         self._gust_rate = 1.0 / np.asarray(n.gust_tau_s)
         self.wind_height_rate_scale = 0.0  # > 0: wind noise × (1 + scale·|ḣ|), EKF2/3's WIND_PSCALE
@@ -119,6 +128,10 @@ class InsProcess:
         self.gust_sigma_m_s = np.array(sigma_m_s, dtype=np.float64)
         self._qc[IDX["gust"]] = 2.0 * self._gust_rate * np.square(self.gust_sigma_m_s)
 
+    def freeze_wind_gradient(self) -> None:
+        """No process noise on the wind's gradient: a mode that does not model it (its prior σ is 0 too)."""
+        self._qc[IDX["wg"]] = 0.0
+
     def propagate(self, x: NavState, u: ImuIncrement) -> NavState:
         out = x.copy()
         self.propagate_inplace(out, u)
@@ -137,6 +150,7 @@ class InsProcess:
         v0 = x.v_ned.copy()
         x.v_ned = v0 + dv_n
         x.p_ned = x.p_ned + 0.5 * (v0 + x.v_ned) * dt
+        x.wind_ned[:2] -= x.wind_gradient_ne_per_s * (0.5 * float(v0[2] + x.v_ned[2]) * dt)  # dw = G·dh
 
     def transition(self, x: NavState, u: ImuIncrement) -> F64Array:
         """Φ ≈ I + F·Δt + ½(F·Δt)², with the attitude at mid-step (as the mechanisation rotates Δv).
@@ -165,6 +179,13 @@ class InsProcess:
         phi[3:6, 12:15] = -dt * c
         phi[6:9, 6:9] = _I3 - dt * wx + h * (wx @ wx)
         phi[6:9, 9:12] = -dt * _I3 + h * wx
+        # the wind at the aircraft's height: ẇ_NE = −G·v_D, with v_D at mid-step (the rows' F² terms through δv_D)
+        g_ne = x.wind_gradient_ne_per_s
+        vd_mid = float(x.v_ned[2]) + 0.5 * dt * (float(c[2] @ f_b) + G0_M_S2)
+        phi[_W, _WG] = -vd_mid * dt * _I2
+        phi[_W, 5] = -dt * g_ne
+        phi[_W, 6:9] = h * np.outer(g_ne, cf[2])
+        phi[_W, 12:15] = h * np.outer(g_ne, c[2])
         return phi
 
     def noise(self, x: NavState, u: ImuIncrement) -> F64Array:

@@ -12,6 +12,10 @@ Nominal state (SI, NED navigation frame about a local origin, FRD body frame):
 * ``b_gnss_ned`` the GNSS receiver's slowly varying position error [m] (a Gauss–Markov process: without
   it the filter would average correlated fixes as if independent and claim decimetres);
 * ``aero`` the model correction parameters :data:`AERO_PARAMS`;
+* ``wind_gradient_ne_per_s`` the mean wind's change with height, d(w_N, w_E)/dh [1/s]: the boundary layer's
+  wind grows and veers with height, so a wind learnt at one height is wrong at another; the wind state is the
+  wind at the aircraft's height and follows the gradient as it climbs or descends (learnt while GNSS aids and
+  the aircraft changes height, held through an outage);
 * ``gnss_lag_s`` the error of the receiver latency the fixes' times of validity assume [s] (true − assumed):
   a fix stamped t is valid at t − lag, so it reads p − v·lag and v − a·lag. The lag is fixed for a receiver
   and its link within tens of ms; treated as white noise per fix, it is averaged as if it were independent,
@@ -68,9 +72,10 @@ IDX: Final = {
     "gust": _block(25, 3),
     "aero": _block(28, len(AERO_PARAMS)),
     "lag": _block(28 + len(AERO_PARAMS), 1),
+    "wg": _block(29 + len(AERO_PARAMS), 2),
 }
 """Error-state slices by block name."""
-N_ERR: Final = 29 + len(AERO_PARAMS)
+N_ERR: Final = 31 + len(AERO_PARAMS)
 AERO_INDEX: Final = {name: 28 + i for i, name in enumerate(AERO_PARAMS)}
 """Error-state index of each aero parameter."""
 AERO_SLOT: Final = {name: i for i, name in enumerate(AERO_PARAMS)}
@@ -93,6 +98,7 @@ class NavState:
     gust_ned: F64Array = field(default_factory=lambda: np.zeros(3))
     aero: F64Array = field(default_factory=lambda: np.array([AERO_PRIOR[k][0] for k in AERO_PARAMS]))
     gnss_lag_s: float = 0.0
+    wind_gradient_ne_per_s: F64Array = field(default_factory=lambda: np.zeros(2))
 
     @property
     def air_motion_ned(self) -> F64Array:
@@ -103,7 +109,7 @@ class NavState:
         return NavState(
             self.p_ned.copy(), self.v_ned.copy(), self.q_nb.copy(), self.b_gyro_b.copy(), self.b_accel_b.copy(),
             self.wind_ned.copy(), self.b_mag_b_ut.copy(), self.b_baro_m, self.b_gnss_ned.copy(),
-            self.gust_ned.copy(), self.aero.copy(), self.gnss_lag_s,
+            self.gust_ned.copy(), self.aero.copy(), self.gnss_lag_s, self.wind_gradient_ne_per_s.copy(),
         )  # fmt: skip
 
     def plus(self, dx: F64Array) -> NavState:
@@ -127,6 +133,7 @@ class NavState:
         self.gust_ned += dx[IDX["gust"]]
         self.aero += dx[IDX["aero"]]
         self.gnss_lag_s += float(dx[IDX["lag"]][0])
+        self.wind_gradient_ne_per_s += dx[IDX["wg"]]
 
     def minus(self, other: NavState) -> F64Array:
         """x ⊖ y: the error state δx with y ⊕ δx = x."""
@@ -145,5 +152,6 @@ class NavState:
                 self.gust_ned - other.gust_ned,
                 self.aero - other.aero,
                 [self.gnss_lag_s - other.gnss_lag_s],
+                self.wind_gradient_ne_per_s - other.wind_gradient_ne_per_s,
             ]
         )
