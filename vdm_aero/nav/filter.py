@@ -502,7 +502,7 @@ class NavFilter:
         sig[IDX["gust"]] = n.gust_sigma_m_s
         sig[IDX["aero"]] = [AERO_PRIOR[k][1] for k in AERO_PARAMS]
         sig[IDX["lag"]] = self.config.gnss_latency_sigma_s
-        sig[IDX["wg"]] = self.config.wind_gradient_sigma_per_s if self.spec.wind_gradient else 0.0
+        sig[IDX["wg"]] = self.config.wind_gradient_sigma_per_s  # inert where the mode leaves it out of the dynamics
         self.engine = EkfEngine(np.diag(sig**2))
         self.t_s = t_s
         self._t_init_s = t_s

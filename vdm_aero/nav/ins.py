@@ -103,6 +103,7 @@ class InsProcess:
         q[IDX["gnss"]] = 2.0 / n.gnss_tau_s * np.square([n.gnss_sigma_ne_m, n.gnss_sigma_ne_m, n.gnss_sigma_d_m])
         self._gust_rate = 1.0 / np.asarray(n.gust_tau_s)
         self.wind_height_rate_scale = 0.0  # > 0: wind noise × (1 + scale·|ḣ|), EKF2/3's WIND_PSCALE
+        self.wind_gradient = True  # the wind follows its gradient with height (freeze_wind_gradient: not)
         self._qc = q
         self.set_gust_sigma(np.asarray(n.gust_sigma_m_s, dtype=np.float64))
         self._g = np.array([0.0, 0.0, G0_M_S2])
@@ -129,8 +130,10 @@ class InsProcess:
         self._qc[IDX["gust"]] = 2.0 * self._gust_rate * np.square(self.gust_sigma_m_s)
 
     def freeze_wind_gradient(self) -> None:
-        """No process noise on the wind's gradient: a mode that does not model it (its prior σ is 0 too)."""
+        """A mode that does not model the wind's gradient: the states leave the dynamics (no noise, no coupling
+        to the wind), so they stay at their prior, uncorrelated with everything, and the wind is as before."""
         self._qc[IDX["wg"]] = 0.0
+        self.wind_gradient = False
 
     def propagate(self, x: NavState, u: ImuIncrement) -> NavState:
         out = x.copy()
@@ -150,7 +153,8 @@ class InsProcess:
         v0 = x.v_ned.copy()
         x.v_ned = v0 + dv_n
         x.p_ned = x.p_ned + 0.5 * (v0 + x.v_ned) * dt
-        x.wind_ned[:2] -= x.wind_gradient_ne_per_s * (0.5 * float(v0[2] + x.v_ned[2]) * dt)  # dw = G·dh
+        if self.wind_gradient:
+            x.wind_ned[:2] -= x.wind_gradient_ne_per_s * (0.5 * float(v0[2] + x.v_ned[2]) * dt)  # dw = G·dh
 
     def transition(self, x: NavState, u: ImuIncrement) -> F64Array:
         """Φ ≈ I + F·Δt + ½(F·Δt)², with the attitude at mid-step (as the mechanisation rotates Δv).
@@ -179,6 +183,8 @@ class InsProcess:
         phi[3:6, 12:15] = -dt * c
         phi[6:9, 6:9] = _I3 - dt * wx + h * (wx @ wx)
         phi[6:9, 9:12] = -dt * _I3 + h * wx
+        if not self.wind_gradient:
+            return phi
         # the wind at the aircraft's height: ẇ_NE = −G·v_D, with v_D at mid-step (the rows' F² terms through δv_D)
         g_ne = x.wind_gradient_ne_per_s
         vd_mid = float(x.v_ned[2]) + 0.5 * dt * (float(c[2] @ f_b) + G0_M_S2)
