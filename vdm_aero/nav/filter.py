@@ -461,10 +461,10 @@ class NavFilter:
             # the compass swing: samples learnt, and whether its correction is applied yet
             "compass_deviation": None if self.mag_deviation is None else {
                 "samples": self.mag_deviation.n, "applied": self.mag_deviation.ready},
-            # the receiver's latency the fixes' stamps miss (true − assumed), as learnt in the turns, and its 1σ
             # the wind's change per 100 m of height (N, E) [m/s], as learnt (the modes that carry it)
             "wind_gradient_m_s_per_100m": None if self.x is None or not self.spec.wind_gradient else [
                 round(100.0 * float(g), 2) for g in self.x.wind_gradient_ne_per_s],
+            # the receiver's latency the fixes' stamps miss (true − assumed), as learnt in the turns, and its 1σ
             "gnss_lag_error_ms": None if self.x is None else [
                 round(1e3 * self.x.gnss_lag_s, 1), round(1e3 * math.sqrt(max(self.P[lag, lag], 0.0)), 1)],
         }  # fmt: skip
