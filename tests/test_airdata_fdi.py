@@ -441,3 +441,45 @@ def test_a_pull_up_the_line_knows_is_no_fault_and_a_step_off_the_line_is() -> No
     raw.under_read.bias_at = lambda alpha_rad: 0.0  # type: ignore[method-assign]
     assert fly(raw, 0.0, 300.0, legs) == []
     assert [(s, w) for s, w, _ in fly(raw, 300.0, 330.0, pull_up)][:1] == [("ports", "excluded")]
+
+
+def test_in_an_outage_the_pose_is_cloned_for_the_free_ins_and_a_wind_event_anchors_on_a_clone() -> None:
+    # the free INS after a wind event runs from the filter's own pose at its window's start; that pose is a
+    # clone of the filter's (engine clones), so the fix counts only what happened since (docs/navigation.md)
+    from vdm_aero.nav.contracts import ImuIncrement
+    from vdm_aero.nav.filter import CLONE_EVERY_S, NavConfig, NavFilter
+    from vdm_aero.vehicle import load_vehicle
+
+    cfg = NavConfig(vehicle=load_vehicle("uav-2m"), origin_alt_m=50.0, mag_field_ned_ut=np.array([20.1, -4.9, 46.5]))
+    f = NavFilter("vdm", cfg)
+    f_b = np.array([0.0, 0.0, -9.80665])
+    f.initialise(0.0, np.zeros(3), np.array([19.0, 0.0, 0.0]), f_b, cfg.mag_field_ned_ut)
+    assert f.engine is not None and f.wind_change is not None and f.x is not None
+    inc = ImuIncrement(np.zeros(3), f_b * 0.02, 0.02)
+    window = f.wind_change.window_s
+
+    def fly(t0: float, t1: float) -> None:
+        """IMU at 50 Hz, the detector's samples and the clones at 10 Hz (as :meth:`_watch_wind` does)."""
+        assert f.x is not None and f.wind_change is not None
+        for k in range(round(t0 * 50) + 1, round(t1 * 50) + 1):
+            f.imu(k * 0.02, inc)
+            if k % 5 == 0:
+                x = f.x
+                f.wind_change.air(f.t_s, 19.0, 0.0, (float(x.p_ned[0]), float(x.p_ned[1])), (19.0, 0.0))
+                f._clone_pose(f.t_s)
+
+    fly(0.0, 0.5)
+    assert not f.in_outage and f.engine.clone_keys == ()  # aided: nothing cloned
+    fly(0.5, 30.0)
+    keys = f.engine.clone_keys
+    assert f.in_outage and np.allclose(np.diff(keys), CLONE_EVERY_S)
+    assert 30.0 - keys[0] <= window + 2.0 * CLONE_EVERY_S and 30.0 - keys[-1] < CLONE_EVERY_S
+    f._relearn_wind(30.0)
+    anchor = f._anchor_clone_s
+    assert anchor in keys and abs(anchor - (30.0 - window)) <= 0.5 * CLONE_EVERY_S
+    assert f.wind_change.anchored_s == pytest.approx(30.0 - anchor)
+    fly(30.0, 40.0)  # the anchored clone outlives the ring while the change settles
+    assert anchor in f.engine.clone_keys and min(f.engine.clone_keys) == anchor
+    f._last_gnss_s = f.t_s  # GNSS is back: no free INS to run, no clone to keep
+    fly(40.0, 40.2)
+    assert f.engine.clone_keys == ()

@@ -448,11 +448,11 @@ class WindChangeDetector:
         d_ins = (now[2] - old[2], now[3] - old[3])
         return math.hypot(d_ins[0] - d_air[0], d_ins[1] - d_air[1])
 
-    def anchor(self) -> None:
-        """Hold the pose at the window's start (before the change just seen) as the free INS's start, until
-        :meth:`release`."""
+    def anchor(self, at_s: float | None = None) -> None:
+        """Hold the pose at the window's start (before the change just seen), or at the sample nearest ``at_s``
+        [s], as the free INS's start, until :meth:`release`."""
         if self._t:
-            k = _index_at(self._t, self._t[-1] - self.window_s)
+            k = _index_at(self._t, self._t[-1] - self.window_s if at_s is None else at_s)
             self._anchor = (self._t[k], self._pose[k], self._v[k])
 
     def release(self) -> None:

@@ -8,11 +8,16 @@ aircraft filter needs around it:
 * Schmidt "consider" updates: the states listed as considered keep their estimate (their Kalman gain rows
   are zeroed) while their uncertainty still enters every other state's covariance. The wind and the model
   parameters are considered during a GNSS outage (docs/navigation.md). filterpy has no consider update,
-  so that one is written here, in the same Joseph form.
+  so that one is written here, in the same Joseph form;
+* stochastic clones (Roumeliotis & Burdick, ICRA 2002): a linear combination of the error state remembered at
+  one time, whose covariance with the error state is carried through every later prediction and update, so
+  that a measurement *relative* to that time (a free INS run from the filter's own pose then) is fused as the
+  news it is and not as an independent fix. filterpy has no clones either.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -41,6 +46,13 @@ class EkfEngine:
         self._kf.x = np.zeros((n, 1))
         self._kf.P = np.array(p0, dtype=np.float64)
         self._n = n
+        # clones: their keys, each one's own covariance (k × k) and their covariances with the error state,
+        # side by side (n × k per clone: one product per prediction however many there are), and the
+        # corrections the updates since have made to them (k per clone, side by side)
+        self._clone_keys: list[float] = []
+        self._clone_cov = np.zeros((0, 0, 0))  # clones × k × k
+        self._cross = np.zeros((n, 0))
+        self._clone_dx = np.zeros(0)
 
     @property
     def P(self) -> F64Array:
@@ -56,6 +68,8 @@ class EkfEngine:
         kf.F = phi
         kf.Q = qd
         kf.predict()
+        if self._clone_keys:
+            self._cross = phi @ self._cross  # a clone is a constant: its error does not propagate
 
     def nis(self, innovation: F64Array, h: F64Array, r: F64Array) -> float:
         """The normalised innovation squared yᵀS⁻¹y of a measurement, S = HPHᵀ + R, without fusing it."""
@@ -88,11 +102,102 @@ class EkfEngine:
             kf.x = np.zeros((self._n, 1))
             kf.update(y, lambda _x: h, lambda _x: np.zeros((len(innovation), 1)), R=r)
             dx = np.asarray(kf.x).ravel().copy()
+            if self._clone_keys:
+                self._update_clones(p, h, s, np.asarray(kf.K), innovation, optimal=True)
         else:
             k = np.linalg.solve(s, h @ p).T
             k[consider] = 0.0
             ikh = np.eye(self._n) - k @ h
             kf.P = ikh @ p @ ikh.T + k @ r @ k.T
             dx = k @ innovation
+            if self._clone_keys:
+                self._update_clones(p, h, s, k, innovation)
         kf.x = np.zeros((self._n, 1))
         return dx, UpdateResult(True, nis, gate)
+
+    def reset_states(self, idx: slice, cov: F64Array) -> None:
+        """Forget what is known of the states ``idx``: covariance ``cov``, uncorrelated with every other state
+        and with the clones (a reset makes them a fresh draw)."""
+        p = self._kf.P
+        p[idx, :] = 0.0
+        p[:, idx] = 0.0
+        p[idx, idx] = cov
+        self._kf.P = p
+        self._cross[idx, :] = 0.0
+
+    # ------------------------------------------------------------------------------- clones
+    @property
+    def clone_keys(self) -> tuple[float, ...]:
+        return tuple(self._clone_keys)
+
+    def clone(self, key: float, sel: F64Array) -> None:
+        """Remember ``sel``·x now (``sel`` k × n) under ``key``, as k more states of the filter: constant in
+        the prediction, corrected by every update like the others (the caller keeps the value it took now; the
+        engine keeps the corrections and applies them in :meth:`update_relative`)."""
+        p = np.asarray(self._kf.P)
+        self._clone_keys.append(key)
+        cov = (sel @ p @ sel.T)[None]
+        self._clone_cov = np.concatenate([self._clone_cov, cov]) if self._clone_cov.size else cov
+        self._cross = np.hstack([self._cross, p @ sel.T])
+        self._clone_dx = np.concatenate([self._clone_dx, np.zeros(sel.shape[0])])
+
+    def _update_clones(self, p: F64Array, h: F64Array, s: F64Array, gain: F64Array, y: F64Array,
+                       optimal: bool = False) -> None:  # fmt: skip
+        """The clones' share of an update whose prior covariance was ``p``, innovation covariance ``s`` and
+        gain ``gain`` (any gain: a consider update's too): the clones take their optimal gain
+        K_c = Cᵀ·Hᵀ·S⁻¹, so Cov(clone) ← Cov(clone) − K_c·S·K_cᵀ and C ← C − K·H·C − (P·Hᵀ − K·S)·K_cᵀ, whose
+        last term vanishes for the ``optimal`` gain (P·Hᵀ = K·S)."""
+        c = self._cross
+        hc = h @ c
+        kc = np.linalg.solve(s, hc).T  # (k·clones) × m; S is symmetric
+        self._cross = c - gain @ hc if optimal else c - gain @ hc - (p @ h.T - gain @ s) @ kc.T
+        self._clone_dx = self._clone_dx + kc @ y
+        kc3 = kc.reshape(self._clone_cov.shape[0], self._clone_cov.shape[1], -1)  # clones × k × m
+        self._clone_cov = self._clone_cov - np.einsum("jam,mn,jbn->jab", kc3, s, kc3)
+
+    def drop_clones(self, keep: Callable[[float], bool] = lambda _key: False) -> None:
+        """Forget the clones whose key ``keep`` rejects (by default all)."""
+        if not self._clone_keys:
+            return
+        k = self._cross.shape[1] // len(self._clone_keys)
+        kept = [j for j, key in enumerate(self._clone_keys) if keep(key)]
+        self._clone_keys = [self._clone_keys[j] for j in kept]
+        self._clone_cov = self._clone_cov[kept] if kept else np.zeros((0, 0, 0))
+        cols = [c for j in kept for c in range(j * k, (j + 1) * k)]
+        self._cross = self._cross[:, cols]
+        self._clone_dx = self._clone_dx[cols]
+
+    def update_relative(
+        self,
+        innovation: F64Array,
+        h: F64Array,
+        a: F64Array,
+        r: F64Array,
+        key: float,
+        consider: BoolArray | None = None,
+    ) -> tuple[F64Array, UpdateResult]:
+        """Fuse a measurement relative to the clone ``key``: y = H·δx + A·δx_clone + v, v ~ N(0, R) (A m × k),
+        ``innovation`` taken against the clone's value as the caller took it (the engine adds the corrections
+        since). The gain is the augmented filter's (the clone as k more states), P is updated in the form
+        valid for any gain (the considered states' gain rows are zeroed), and the clones are spent: their
+        covariances with each other were never carried, so none is left. No gate: the caller fuses what it
+        means to fuse."""
+        j = self._clone_keys.index(key)
+        k = self._clone_cov[j].shape[0]
+        c, paa = self._cross[:, j * k : (j + 1) * k], self._clone_cov[j]
+        innovation = innovation - a @ self._clone_dx[j * k : (j + 1) * k]
+        p = np.asarray(self._kf.P)
+        pyt = p @ h.T + c @ a.T  # cov(δx, y)
+        s = h @ pyt + a @ c.T @ h.T + a @ paa @ a.T + r
+        try:
+            gain = np.linalg.solve(s, pyt.T).T
+            nis = float(innovation @ np.linalg.solve(s, innovation))
+        except np.linalg.LinAlgError:
+            return np.zeros(self._n), UpdateResult(False, float("inf"), float("inf"))
+        if consider is not None:
+            gain[consider] = 0.0
+        kpt = gain @ pyt.T
+        p_new = p - kpt - kpt.T + gain @ s @ gain.T
+        self._kf.P = 0.5 * (p_new + p_new.T)
+        self.drop_clones()
+        return gain @ innovation, UpdateResult(True, nis, float("inf"))

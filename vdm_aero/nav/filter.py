@@ -53,6 +53,7 @@ from vdm_aero.nav.measurements import (
     GnssVelocity,
     InsWindowFix,
     MagField,
+    MagHeading,
     PitotAirspeed,
     PortAirData,
     PortForce,
@@ -111,6 +112,8 @@ class ModeSpec:
     mag_deviation: bool = False
     # the wind's gradient with height as states (vdm_aero.nav.state): the wind follows a climb or a descent
     wind_gradient: bool = False
+    # in an outage the compass corrects the heading only, never the tilt (:meth:`NavFilter.mag`)
+    compass_heading_only: bool = False
     description: str = ""
 
     def force_model(self, available: Collection[str]) -> str | None:
@@ -163,6 +166,9 @@ ABLATIONS: Final = {
                                 description="ablation: vdm without the compass deviation learnt in flight"),
     "vdm-no-gradient": replace(_VDM, wind_gradient=False,
                                description="ablation: vdm without the wind's gradient with height (WIND_PSCALE)"),
+    # not an ablation but the variant measured against it (docs/navigation.md, "The compass's heading alone")
+    "vdm-compass-heading": replace(_VDM, compass_heading_only=True,
+                                   description="variant: vdm whose compass gives the heading only in an outage"),
 }  # fmt: skip
 
 
@@ -194,6 +200,10 @@ WIND_SETTLED_M_S: Final = 1.5  # |Δw| over 2 s under this: the change is over (
 HEADING_DOUBT_S: Final = 30.0  # a magnetometer gated out this recently: no free-INS fix
 MAG_LEARN_AFTER_S: Final = 60.0  # the compass swing starts once the aided heading has converged
 WIND_STEP_M_S: Final = 6.0  # |Δw| from before the change to its end: a step that stayed (the shear's 10.6 m/s)
+# in an outage the pose is cloned this often, so a wind event finds one near its window's start to run the free INS
+# from; a clone costs one n × 4 product per IMU step, and the window's start need not be exact
+CLONE_EVERY_S: Final = 2.0
+_WINDOW_POSE: Final = InsWindowFix(INS_WINDOW_SIGMA_P_M, INS_WINDOW_SIGMA_V_M_S)  # what is cloned: p, v north, east
 
 
 @dataclass(frozen=True)
@@ -379,6 +389,7 @@ class NavFilter:
         self._wind_live = self._consider.copy()
         self._wind_live[IDX["wind"]] = False
         self._wind_live_until_s = -math.inf
+        self._anchor_clone_s: float | None = None  # the clone the wind detector's free INS runs from
         self._gnss_scale = (1.0, 1.0)  # the GNSS error model's scale from the receiver's accuracy (gnss)
         self.fdi = AirDataFdi() if self.spec.fdi else None
         self.wind_change = WindChangeDetector() if self.spec.wind_relearn else None
@@ -573,13 +584,8 @@ class NavFilter:
         hold: back to their turn-on σ (the pose's own uncertainty grows over the reboot's gap)."""
         sig = {"bg": self.config.gyro_bias_sigma_rad_s, "ba": self.config.accel_bias_sigma_m_s2}
         if self.engine is not None:
-            p = self.engine.P
             for k, s in sig.items():
-                i = IDX[k]
-                p[i, :] = 0.0
-                p[:, i] = 0.0
-                p[i, i] = np.eye(i.stop - i.start) * s**2
-            self.engine.P = p
+                self.engine.reset_states(IDX[k], np.eye(3) * s**2)
         elif self._carried is not None:
             cov = self._carried[1]
             idx = list(slow_index())
@@ -809,12 +815,9 @@ class NavFilter:
     def _reset_position(self, p_ned: F64Array) -> None:
         assert self.x is not None and self.engine is not None
         self.x.p_ned = p_ned - self.x.b_gnss_ned
-        p = self.engine.P
-        i = IDX["p"]
-        p[i, :] = 0.0
-        p[:, i] = 0.0
-        p[i, i] = np.diag([self.config.gnss_pos_sigma_ne_m**2] * 2 + [self.config.gnss_pos_sigma_d_m**2])
-        self.engine.P = p
+        self.engine.reset_states(
+            IDX["p"], np.diag([self.config.gnss_pos_sigma_ne_m**2] * 2 + [self.config.gnss_pos_sigma_d_m**2])
+        )
         self.counts["gnss_position_reset"] = self.counts.get("gnss_position_reset", 0) + 1
         self._pos_rejected_since = None
 
@@ -851,7 +854,17 @@ class NavFilter:
             if not self.in_outage and t_s - self._t_init_s > MAG_LEARN_AFTER_S:
                 dev.observe(m_b, h_b, self.inputs.throttle)
             m_b = m_b - dev.correction_ut(h_b, self.inputs.throttle)
-        self._fuse(Measurement(t_s, m_b, MagField(self.config.mag_field_ned_ut, self.config.mag_sigma_ut)))
+        field_ned, sigma = self.config.mag_field_ned_ut, self.config.mag_sigma_ut
+        if self.spec.compass_heading_only and self.in_outage:
+            # the heading alone: the compass's residual deviation (soft iron and the motor's field beyond what
+            # was learnt, a few µT against its 1.5-µT σ, changing with the throttle in a descent) would
+            # otherwise tilt the attitude with no GNSS velocity to hold it, and g·tilt is the fastest drift there
+            # is (a return through a gradient: 60 mrad of pitch in 40 s, 24 km off at 300 s). Weighted as the
+            # field's σ across its horizontal part, the heading's weight in the three-axis fusion
+            psi = MagHeading.measured(self.x, m_b, field_ned)
+            self._fuse(Measurement(t_s, np.array([psi]), MagHeading(sigma / float(np.hypot(*field_ned[:2])))))
+        else:
+            self._fuse(Measurement(t_s, m_b, MagField(field_ned, sigma)))
 
     def ap_attitude(self, t_s: float, q_nb: F64Array) -> None:
         """The autopilot's own attitude estimate (body FRD → NED quaternion), fused when the config asks for it
@@ -959,6 +972,7 @@ class NavFilter:
         x = self.x
         change = self.wind_change.air(frame.t_s, float(v_n[0]), float(v_n[1]), (float(x.p_ned[0]), float(x.p_ned[1])),
                                       (float(x.v_ned[0]), float(x.v_ned[1])))  # fmt: skip
+        self._clone_pose(frame.t_s)
         if self.wind_change.anchored_s is not None:
             self._settle_wind_change(frame.t_s)
         if change is None or not self.in_outage or frame.t_s < self._wind_live_until_s:
@@ -970,6 +984,22 @@ class NavFilter:
         self.counts["fdi_wind_changed"] = self.counts.get("fdi_wind_changed", 0) + 1
         self._relearn_wind(frame.t_s)
 
+    def _clone_pose(self, t_s: float) -> None:
+        """In an outage, clone the horizontal pose the wind detector has just recorded every
+        :data:`CLONE_EVERY_S`, keeping those a wind event's window can start from (and the one anchored); out of
+        an outage, none."""
+        assert self.engine is not None and self.wind_change is not None
+        if not self.in_outage:
+            self.engine.drop_clones()
+            return
+        oldest = t_s - self.wind_change.window_s - 2.0 * CLONE_EVERY_S
+        anchored = self._anchor_clone_s if self.wind_change.anchored_s is not None else None
+        self.engine.drop_clones(lambda k: k >= oldest or k == anchored)
+        keys = self.engine.clone_keys
+        if not keys or t_s - keys[-1] >= CLONE_EVERY_S - 1e-6:
+            assert self.x is not None
+            self.engine.clone(t_s, _WINDOW_POSE.jacobian(self.x))
+
     def _relearn_wind(self, t_s: float) -> None:
         """The air data agree the wind has changed: forget the wind (σ back to a shear's size, uncorrelated) and
         let it be estimated for the FDI's relearning time, also in an outage. Until the change was seen, the air
@@ -977,15 +1007,14 @@ class NavFilter:
         the change is over and has stayed, the horizontal pose a free INS gives from the filter's pose before
         it puts them back, and the gust state hands the new wind over (:meth:`_settle_wind_change`)."""
         assert self.engine is not None
-        p = self.engine.P
-        i = IDX["wind"]
-        p[i, :] = 0.0
-        p[:, i] = 0.0
-        p[i, i] = np.diag(np.square(WIND_RELEARN_SIGMA_M_S))
-        self.engine.P = p
+        self.engine.reset_states(IDX["wind"], np.diag(np.square(WIND_RELEARN_SIGMA_M_S)))
         self._wind_live_until_s = t_s + WIND_RELEARN_S
-        if self.wind_change is not None and self.in_outage:
-            self.wind_change.anchor()
+        keys, wc = self.engine.clone_keys, self.wind_change
+        if wc is not None and self.in_outage and keys:
+            # the free INS starts from the cloned pose nearest the window's start, before the change
+            at = min(keys, key=lambda k: abs(k - (t_s - wc.window_s)))
+            wc.anchor(at)
+            self._anchor_clone_s = at
 
     def _hand_gust_to_wind(self) -> None:
         """The gust state (zero-mean Gauss–Markov, live while the wind is held) has soaked up the new wind
@@ -996,13 +1025,8 @@ class NavFilter:
         x = self.x
         x.wind_ned[:2] += x.gust_ned[:2]
         x.gust_ned[:2] = 0.0
-        p = self.engine.P
-        w, g = IDX["wind"], IDX["gust"]
-        for i, var in ((w, np.square(WIND_RELEARN_SIGMA_M_S)), (g, np.square(self.process.gust_sigma_m_s))):
-            p[i, :] = 0.0
-            p[:, i] = 0.0
-            p[i, i] = np.diag(var)
-        self.engine.P = p
+        self.engine.reset_states(IDX["wind"], np.diag(np.square(WIND_RELEARN_SIGMA_M_S)))
+        self.engine.reset_states(IDX["gust"], np.diag(np.square(self.process.gust_sigma_m_s)))
 
     def _settle_wind_change(self, t_s: float) -> None:
         """After a wind event in an outage: once the change is over (|Δw| over the last 2 s under
@@ -1013,7 +1037,7 @@ class NavFilter:
         :data:`INS_WINDOW_MAX_S` is the INS drifting (vibration, clipping, scale errors in a climb), and the
         free INS is then the last thing to trust: no fix."""
         wc = self.wind_change
-        assert wc is not None
+        assert wc is not None and self.engine is not None
         tau = wc.anchored_s
         if tau is None:
             return
@@ -1025,12 +1049,13 @@ class NavFilter:
         if recent is None or recent > WIND_SETTLED_M_S:
             return
         step = wc.change_since_anchor()
-        fix = wc.ins_window(t_s) if self.in_outage else None
+        clone = self._anchor_clone_s
+        fix = wc.ins_window(t_s) if self.in_outage and clone in self.engine.clone_keys else None
         wc.release()
         # the free INS turns its increments to NED with the filter's heading: with the compass gated out lately
         # the heading is what is wrong, and the "change" is the INS and the air data turned apart by it
         heading_doubt = t_s - self._last_rejected_s.get("mag", -math.inf) < HEADING_DOUBT_S
-        if fix is None or step is None or step < WIND_STEP_M_S or heading_doubt:
+        if fix is None or clone is None or step is None or step < WIND_STEP_M_S or heading_doubt:
             # the change went back (a gust, turbulence with the INS's own error on top): no step to undo
             self.counts["ins_window_abandoned"] = self.counts.get("ins_window_abandoned", 0) + 1
             return
@@ -1038,8 +1063,19 @@ class NavFilter:
         a = INS_WINDOW_ACCEL_M_S2
         sig_v = math.hypot(INS_WINDOW_SIGMA_V_M_S, a * tau)
         sig_p = math.hypot(INS_WINDOW_SIGMA_P_M, 0.5 * a * tau * tau)
-        # no gate: the point is to move the state by what the gate would call an outlier
-        res = self._fuse(Measurement(t_s, np.array([pn, pe, vn, ve]), InsWindowFix(sig_p, sig_v)), gate=math.inf)
+        # the free INS ran from the filter's own pose at the clone: its error is that pose's error plus the INS's
+        # own, so the fix is relative to the clone (fused as if independent, every fix shrank the covariance:
+        # a return through a gradient ended 24 km off with σ 9 m). No gate: the point is to move the state by
+        # what the gate would call an outlier
+        model = InsWindowFix(sig_p, sig_v)
+        assert self.x is not None
+        y = np.array([pn, pe, vn, ve]) - model.evaluate(self.x)
+        consider = self._wind_live if t_s < self._wind_live_until_s else self._consider
+        dx, res = self.engine.update_relative(y, model.jacobian(self.x), -np.eye(4), model.covariance(),
+                                              clone, consider)  # fmt: skip
+        self.nis.setdefault(model.name, deque(maxlen=NIS_WINDOW)).append(res.nis)
+        if res.accepted:
+            self.x.plus_inplace(dx)
         self.counts["ins_window_fix"] = self.counts.get("ins_window_fix", 0) + int(res.accepted)
         self._hand_gust_to_wind()  # what the gust took of the change while it went on
         self._wind_live_until_s = max(self._wind_live_until_s, t_s + WIND_RELEARN_S)

@@ -19,7 +19,7 @@ import numpy as np
 from vdm_aero._typing import F64Array
 from vdm_aero.nav.ins import skew
 from vdm_aero.nav.state import AERO_INDEX, AERO_SLOT, IDX, N_ERR, NavState
-from vdm_aero.rotation import dcm_from_quat, quat_log, quat_multiply
+from vdm_aero.rotation import dcm_from_quat, euler_from_quat, quat_from_euler, quat_log, quat_multiply
 
 __all__ = [
     "AirKinematics",
@@ -32,6 +32,7 @@ __all__ = [
     "GnssVelocity",
     "InsWindowFix",
     "MagField",
+    "MagHeading",
     "PitotAirspeed",
     "PortAirData",
     "PortForce",
@@ -133,7 +134,8 @@ class GnssPosition:
 class InsWindowFix:
     """Horizontal position N, E [m] and velocity N, E [m/s] of a free INS over the last few seconds, started
     from the filter's own pose (:meth:`~vdm_aero.nav.airdata_fdi.WindChangeDetector.ins_window`): what undoes
-    a wind change that the air data fed into the velocity before it was seen."""
+    a wind change that the air data fed into the velocity before it was seen. Its error holds that pose's, so
+    the filter fuses it relative to a clone of it (:meth:`~vdm_aero.nav.engine.EkfEngine.update_relative`)."""
 
     sigma_p_m: float
     sigma_v_m_s: float
@@ -230,6 +232,40 @@ class MagField:
 
     def covariance(self) -> F64Array:
         return _diag((self.sigma_ut,) * 3)
+
+
+@dataclass(frozen=True)
+class MagHeading:
+    """The heading (ZYX yaw) [rad] the compass gives once its field, less the hard-iron estimate, is levelled
+    with the estimate's own roll and pitch: ArduPilot EKF3's yaw fusion (``fuseEulerYaw``, EK3_MAG_CAL 2) and
+    PX4 EKF2's heading fusion. h(x) is the state's yaw, so the compass corrects the heading and, unlike the
+    field's three axes (:class:`MagField`), never reads its own errors as tilt; the tilt's error enters the
+    measured heading instead (:meth:`measured`), as in those filters. With q = q̂ ⊗ exp(δθ_b) the yaw moves by
+    (sin φ·δθ_y + cos φ·δθ_z)/cos θ."""
+
+    sigma_rad: float
+    name: str = "mag"
+
+    @staticmethod
+    def measured(x: NavState, field_b_ut: F64Array, field_ned_ut: F64Array) -> float:
+        """The compass heading [rad]: the field less x's hard iron, levelled by x's roll and pitch, against the
+        Earth field's own direction (its declination), within ±π of x's yaw."""
+        roll, pitch, yaw = euler_from_quat(x.q_nb)
+        level = dcm_from_quat(quat_from_euler(roll, pitch, 0.0)) @ (np.asarray(field_b_ut) - x.b_mag_b_ut)
+        psi = math.atan2(float(field_ned_ut[1]), float(field_ned_ut[0])) - math.atan2(level[1], level[0])
+        return yaw + math.remainder(psi - yaw, 2.0 * math.pi)
+
+    def evaluate(self, x: NavState) -> F64Array:
+        return np.array([euler_from_quat(x.q_nb)[2]])
+
+    def jacobian(self, x: NavState) -> F64Array:
+        roll, pitch, _ = euler_from_quat(x.q_nb)
+        h = np.zeros((1, N_ERR))
+        h[0, IDX["theta"]] = np.array([0.0, math.sin(roll), math.cos(roll)]) / math.cos(pitch)
+        return h
+
+    def covariance(self) -> F64Array:
+        return _diag((self.sigma_rad,))
 
 
 @dataclass(frozen=True)
