@@ -56,7 +56,6 @@ def test_in_an_outage_the_heading_compass_turns_the_heading_and_not_the_tilt() -
     # level and heading north, the deviation's 4 µT along x add to the field's north part: the levelled field
     # points atan2(E, N + 4) instead of atan2(E, N), and the heading moves by the gain's share of that
     heading_error = math.atan2(MAG_NED_UT[1], MAG_NED_UT[0]) - math.atan2(MAG_NED_UT[1], MAG_NED_UT[0] + 4.0)
-    assert heading_error == pytest.approx(-0.038, abs=0.001)
     assert moved["vdm-compass-heading"][2] == pytest.approx(gain["vdm-compass-heading"] * heading_error, rel=0.01)
 
 

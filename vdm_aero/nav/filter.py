@@ -39,6 +39,7 @@ from vdm_aero.nav.airdata_fdi import (
     WindChangeDetector,
     wind_change_threshold_m_s,
 )
+from vdm_aero.nav.compass_consistency import CompassConsistency
 from vdm_aero.nav.contracts import ImuIncrement, Measurement
 from vdm_aero.nav.design_fit import StabilityDerivatives
 from vdm_aero.nav.engine import EkfEngine, UpdateResult
@@ -114,6 +115,9 @@ class ModeSpec:
     wind_gradient: bool = False
     # in an outage the compass corrects the heading only, never the tilt (:meth:`NavFilter.mag`)
     compass_heading_only: bool = False
+    # in an outage, the compass's heading alone once its innovation along the field shows a field that changed
+    # (vdm_aero.nav.compass_consistency)
+    compass_check: bool = False
     description: str = ""
 
     def force_model(self, available: Collection[str]) -> str | None:
@@ -150,8 +154,10 @@ MODES: Final = {
         wind_relearn=True,
         mag_deviation=True,
         wind_gradient=True,
+        compass_check=True,
         description="the product: pitot + port air data + force model, air-data FDI, wind relearnt with its "
-        "gradient with height, compass deviation learnt in flight",
+        "gradient with height, compass deviation learnt in flight, the compass's heading alone in an outage once "
+        "its field's strength is off",
     ),
 }
 # The product mode with one part taken away, for the benchmark's ablation table (not offered to serve or
@@ -169,6 +175,9 @@ ABLATIONS: Final = {
     # not an ablation but the variant measured against it (docs/navigation.md, "The compass's heading alone")
     "vdm-compass-heading": replace(_VDM, compass_heading_only=True,
                                    description="variant: vdm whose compass gives the heading only in an outage"),
+    "vdm-no-compass-check": replace(_VDM, compass_check=False,
+                                    description="ablation: vdm whose compass keeps its three axes through an outage "
+                                    "whatever its field's strength"),
 }  # fmt: skip
 
 
@@ -394,6 +403,7 @@ class NavFilter:
         self.fdi = AirDataFdi() if self.spec.fdi else None
         self.wind_change = WindChangeDetector() if self.spec.wind_relearn else None
         self.mag_deviation = MagDeviation(config.mag_field_ned_ut) if self.spec.mag_deviation else None
+        self.compass_check = CompassConsistency() if self.spec.compass_check else None
         # with the wind's gradient as states, the wind follows a climb or a descent and its covariance grows
         # through Φ by the height changed times the gradient's σ: what EKF3's WIND_PSCALE stands in for
         if self.spec.wind_relearn and not self.spec.wind_gradient:
@@ -432,6 +442,7 @@ class NavFilter:
         out.fdi = copy.deepcopy(self.fdi, memo)  # the air-data FDI's levels, exclusions and history
         out.wind_change = copy.deepcopy(self.wind_change, memo)
         out.mag_deviation = copy.deepcopy(self.mag_deviation, memo)
+        out.compass_check = copy.deepcopy(self.compass_check, memo)
         out._carried = copy.deepcopy(self._carried, memo)
         return out
 
@@ -855,7 +866,7 @@ class NavFilter:
                 dev.observe(m_b, h_b, self.inputs.throttle)
             m_b = m_b - dev.correction_ut(h_b, self.inputs.throttle)
         field_ned, sigma = self.config.mag_field_ned_ut, self.config.mag_sigma_ut
-        if self.spec.compass_heading_only and self.in_outage:
+        if self._compass_biased(t_s, m_b, field_ned, sigma) or (self.spec.compass_heading_only and self.in_outage):
             # the heading alone: the compass's residual deviation (soft iron and the motor's field beyond what
             # was learnt, a few µT against its 1.5-µT σ, changing with the throttle in a descent) would
             # otherwise tilt the attitude with no GNSS velocity to hold it, and g·tilt is the fastest drift there
@@ -865,6 +876,25 @@ class NavFilter:
             self._fuse(Measurement(t_s, np.array([psi]), MagHeading(sigma / float(np.hypot(*field_ned[:2])))))
         else:
             self._fuse(Measurement(t_s, m_b, MagField(field_ned, sigma)))
+
+    def _compass_biased(self, t_s: float, m_b: F64Array, field_ned: F64Array, sigma: float) -> bool:
+        """Whether the compass's three axes are to be left out for the rest of this outage
+        (:class:`CompassConsistency`: its innovations against the filter's predicted σ)."""
+        check = self.compass_check
+        if check is None:
+            return False
+        if not self.in_outage:
+            check.reset()
+            return False
+        if not check.biased:
+            assert self.x is not None and self.engine is not None
+            model = MagField(field_ned, sigma)
+            h = model.jacobian(self.x)
+            s = h @ self.engine.P @ h.T + model.covariance()
+            earth_b = dcm_from_quat(self.x.q_nb).T @ field_ned
+            if check.observe(t_s, m_b - model.evaluate(self.x), s, earth_b):
+                self.counts["compass_biased"] = self.counts.get("compass_biased", 0) + 1
+        return check.biased
 
     def ap_attitude(self, t_s: float, q_nb: F64Array) -> None:
         """The autopilot's own attitude estimate (body FRD → NED quaternion), fused when the config asks for it

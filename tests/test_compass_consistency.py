@@ -1,0 +1,127 @@
+"""The compass's consistency test in an outage (``vdm``'s, issue 22; ``vdm-no-compass-check`` is the ablation
+without it): the exponentially weighted mean
+of its normalised innovations against the window's analytic figures, and the filter fusing the heading alone once
+it latches."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import pytest
+
+from tests.test_compass_heading import MAG_NED_UT, _in_outage
+from vdm_aero.atmosphere import G0_M_S2
+from vdm_aero.nav.compass_consistency import TAU_S, THRESHOLD, CompassConsistency
+from vdm_aero.nav.contracts import ImuIncrement, Measurement
+from vdm_aero.nav.engine import UpdateResult
+from vdm_aero.nav.state import IDX
+from vdm_aero.rotation import dcm_from_quat, euler_from_quat
+
+RATE_HZ = 10.0
+
+
+FIELD_B_UT = np.array([20.1, -4.9, 46.5])  # level, heading north
+U = FIELD_B_UT / np.linalg.norm(FIELD_B_UT)
+S = np.eye(3) * 2.25  # µT²: σ 1.5 µT on each axis
+
+
+def _across(v: np.ndarray) -> np.ndarray:
+    """``v`` less its component along the field: what an attitude error can make."""
+    return v - (v @ U) * U
+
+
+def test_a_consistent_compass_never_latches_and_its_mean_spreads_as_the_window_says() -> None:
+    # white unit-variance innovations at 10 Hz: the EWMA with weight a = Δt/τ has the stationary σ √(a / (2 − a))
+    rng = np.random.default_rng(11)
+    check = CompassConsistency()
+    means = []
+    for k in range(round(1200 * RATE_HZ)):
+        assert not check.observe(k / RATE_HZ, rng.standard_normal(3) * 1.5, S, FIELD_B_UT)
+        means.append(check.mean)
+    a = 1.0 / (RATE_HZ * TAU_S)
+    spread = float(np.std(means[round(10 * TAU_S * RATE_HZ) :]))
+    assert spread == pytest.approx(math.sqrt(a / (2.0 - a)), rel=0.15)
+    assert not check.biased
+
+
+def test_a_tilt_never_latches_a_field_change_does_when_the_window_says() -> None:
+    # an innovation across the field, of any size, is what an attitude error makes: never the compass's fault
+    check = CompassConsistency()
+    tilt = _across(np.array([6.0, -4.0, 3.0]))
+    assert np.linalg.norm(tilt) > 5.0
+    assert not any(check.observe(k / RATE_HZ, tilt, S, FIELD_B_UT) for k in range(600))
+    # a field 4.5 µT stronger (z = 3 along it, with a tilt-like part besides): the mean after n samples is
+    # z·(1 − (1 − a)ⁿ), past the threshold at n = ⌈ln(1 − thr/z) / ln(1 − a)⌉
+    check.reset()
+    a = 1.0 / (RATE_HZ * TAU_S)
+    n = math.ceil(math.log(1.0 - THRESHOLD / 3.0) / math.log(1.0 - a))
+    nu = 4.5 * U + tilt
+    latched = [k for k in range(600) if check.observe(k / RATE_HZ, nu, S, FIELD_B_UT)]
+    assert latched == [n - 1] and check.biased_at_s == pytest.approx((n - 1) / RATE_HZ)
+    check.observe(60.0, np.zeros(3), S, FIELD_B_UT)
+    assert check.biased  # latched: the heading fusion that follows no longer tests the field
+    check.reset()
+    assert not check.biased and check.mean == 0.0
+    # a weaker field latches too: the test is two-sided
+    assert any(check.observe(k / RATE_HZ, -4.5 * U, S, FIELD_B_UT) for k in range(600))
+
+
+def _fly_outage(mode: str, deviation_b_ut: np.ndarray, seconds: float) -> tuple[float, dict[str, int], list[str]]:
+    """An aligned filter (attitude σ 2 mrad, hard iron σ 0.5 µT, as after an aided flight) in an outage, flying
+    level north with a compass carrying ``deviation_b_ut``: its pitch [rad] after ``seconds``, its counts, and the
+    measurement model of each compass sample fused, in order."""
+    f = _in_outage(mode)
+    fused: list[str] = []
+    fuse = f._fuse
+
+    def spy(meas: Measurement, *args: Any, **kwargs: Any) -> UpdateResult:
+        if meas.model.name == "mag":
+            fused.append(type(meas.model).__name__)
+        return fuse(meas, *args, **kwargs)
+
+    f._fuse = spy  # type: ignore[method-assign]
+    assert f.x is not None and f.engine is not None
+    p = f.engine.P
+    for key, sigma in (("theta", 0.002), ("bm", 0.5)):
+        idx = IDX[key]
+        p[idx, :] = 0.0
+        p[:, idx] = 0.0
+        p[idx, idx] = np.eye(3) * sigma**2
+    f_b = np.array([0.0, 0.0, -G0_M_S2])
+    inc = ImuIncrement(np.zeros(3), f_b * 0.02, 0.02)
+    t0 = f.t_s
+    for k in range(1, round(seconds / 0.02) + 1):
+        t = t0 + k * 0.02
+        f.imu(t, inc)
+        if k % 5 == 0:
+            f.mag(t, dcm_from_quat(np.array([1.0, 0.0, 0.0, 0.0])).T @ MAG_NED_UT + deviation_b_ut)
+    return float(euler_from_quat(f.x.q_nb)[1]), dict(f.counts), fused
+
+
+def test_in_an_outage_a_field_that_changed_is_caught_and_then_gives_the_heading_only() -> None:
+    # a field 5 µT stronger along itself (a motor's field at a throttle the swing did not learn): the three axes
+    # tilt the attitude to explain what they can of it; the check sees it within seconds, and from then on every
+    # compass sample is fused as a heading (the heading's own effect on the tilt is test_compass_heading.py's)
+    stronger = 5.0 * MAG_NED_UT / np.linalg.norm(MAG_NED_UT)
+    _, counts, fused = _fly_outage("vdm-no-compass-check", stronger, 20.0)
+    assert "compass_biased" not in counts and set(fused) == {"MagField"}
+    _, counts, fused = _fly_outage("vdm", stronger, 20.0)
+    assert counts.get("compass_biased") == 1
+    first = fused.index("MagHeading")
+    assert (
+        3 <= first <= 5 * TAU_S * RATE_HZ
+        and set(fused[:first]) == {"MagField"}
+        and set(fused[first:]) == {"MagHeading"}
+    )
+
+
+@pytest.mark.parametrize("deviation_b_ut", [np.zeros(3), 5.0 * _across(np.array([0.0, 1.0, 0.0]))])
+def test_in_an_outage_a_compass_whose_field_kept_its_strength_keeps_its_three_axes(deviation_b_ut: np.ndarray) -> None:
+    # no deviation, and ~5 µT across the field (mostly east, level and heading north), which reads as an attitude
+    # error the three axes turn the attitude by: neither is a field that changed
+    pitch, counts, fused = _fly_outage("vdm", deviation_b_ut, 20.0)
+    assert "compass_biased" not in counts and len(fused) >= 150 and set(fused) == {"MagField"}
+    if not deviation_b_ut.any():
+        assert abs(pitch) < 0.002

@@ -1,0 +1,79 @@
+"""Is the compass's field still the one the filter was aided with? A persistent-innovation test for an outage.
+
+Why: in an outage the three-axis compass holds the tilt as well as the heading, which pays while its field is
+the field the filter was aligned with (the survey, a wind shear: the air data relearn the wind while the
+compass holds the attitude). A field change that nothing models (the motor's field at a throttle the in-flight
+swing learnt wrong, a glide home with the throttle closed) reads the same as a tilt: with no GNSS velocity to
+hold it, the filter turns its pitch to explain the field, and g·tilt is the fastest drift there is
+(docs/navigation.md, seed 19 of the gradient: 60 mrad of pitch in 40 s, 24 km at 300 s).
+
+What tells a field change from a tilt: a rotation cannot change the field's strength. A tilt or heading
+error δθ makes the innovation [ĥ_b×]·δθ, across the predicted field ĥ_b; a field that changed (the motor's, a
+soft iron the swing learnt wrong) has in general a part along it. So the test reads only the innovation's
+component along ĥ_b, which no attitude error can make — the component ArduPilot's compass checks read as the
+field's length (the calibration's field radius, EKF3's field-strength consistency). A wind shear, which pulls
+the attitude through the air data while the compass is as it was, leaves it alone.
+
+The test is the innovation-mean test of the fault-detection literature (Mehra & Peschon, "An innovations
+approach to fault detection and diagnosis in dynamic systems", Automatica 7, 1971): that component,
+normalised by its predicted σ (√(uᵀSu): the hard iron's uncertainty and the sensor's noise), is averaged with
+an exponential window of :data:`TAU_S`. While the compass agrees with the filter the mean is that of a zero-mean
+unit-variance sequence, σ ≈ √(Δt / 2τ) ≈ 0.1 at 10 Hz; but the compass's σ stands mostly for the deviation the
+swing leaves, a bias, and healthy flights start an outage with a mean near 1, a glide home with the throttle
+closed near 3. Past :data:`THRESHOLD` the compass is *biased* for the rest of the outage, and the filter fuses
+its heading alone (:class:`vdm_aero.nav.measurements.MagHeading`, as ArduPilot EKF3 and PX4 EKF2 fuse a compass
+they do not trust for the tilt): latched, because the heading fusion no longer tests the field.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Final
+
+import numpy as np
+
+from vdm_aero._typing import F64Array
+
+__all__ = ["CompassConsistency"]
+
+TAU_S: Final = 5.0  # the mean's window [s]: a throttle change settles in seconds, turbulence averages out
+# |mean normalised innovation|: a field error twice the σ the filter gives the compass, which R does not cover.
+# Not the white-noise figure (the mean of white innovations has σ 0.1): the compass's 1.5-µT σ stands mostly
+# for deviation left after the swing, a bias, and at an outage's start healthy flights carry a mean of ~1
+THRESHOLD: Final = 2.0
+
+
+@dataclass
+class CompassConsistency:
+    """The exponentially weighted mean of the compass's normalised innovation along the field in an outage (module
+    docstring): :meth:`observe` each sample, :attr:`biased` once the mean passes :data:`THRESHOLD`."""
+
+    tau_s: float = TAU_S
+    threshold: float = THRESHOLD
+    mean: float = 0.0
+    biased: bool = False
+    biased_at_s: float | None = None
+    _t_s: float | None = None
+
+    def reset(self) -> None:
+        """A new outage (or GNSS back): the compass is trusted again."""
+        self.mean = 0.0
+        self.biased, self.biased_at_s, self._t_s = False, None, None
+
+    def observe(self, t_s: float, innovation: F64Array, s: F64Array, field_b_ut: F64Array) -> bool:
+        """One sample's innovation [µT], its predicted covariance S [µT²] and the field it was predicted
+        against (the Earth's field in the body axes) [µT]; True when this sample latches :attr:`biased`."""
+        if self.biased:
+            return False
+        dt = 0.0 if self._t_s is None else max(t_s - self._t_s, 0.0)
+        self._t_s = t_s
+        u = np.asarray(field_b_ut, dtype=np.float64)
+        u = u / np.linalg.norm(u)
+        z = float(u @ innovation) / float(np.sqrt(u @ s @ u))
+        # the first sample's weight is that of a 10 Hz one: a mean that starts at zero, not at one sample
+        a = min(dt / self.tau_s, 1.0) if dt > 0.0 else 0.1 / self.tau_s
+        self.mean += a * (z - self.mean)
+        if abs(self.mean) > self.threshold:
+            self.biased, self.biased_at_s = True, t_s
+            return True
+        return False
