@@ -1,7 +1,7 @@
 """The compass's consistency test in an outage (``vdm``'s, issue 22; ``vdm-no-compass-check`` is the ablation
-without it): the exponentially weighted mean
-of its normalised innovations against the window's analytic figures, and the filter fusing the heading alone once
-it latches."""
+without it, ``vdm-no-throttle-range`` without its throttle part): the exponentially weighted means of its
+normalised innovations and of the throttle against the windows' analytic figures, the throttles the swing reports
+it learnt on, and the filter fusing the heading alone once it latches."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import pytest
 
 from tests.test_compass_heading import MAG_NED_UT, _in_outage
 from vdm_aero.atmosphere import G0_M_S2
-from vdm_aero.nav.compass_consistency import TAU_S, THRESHOLD, CompassConsistency
+from vdm_aero.nav.compass_consistency import TAU_S, THRESHOLD, THROTTLE_MARGIN, THROTTLE_TAU_S, CompassConsistency
 from vdm_aero.nav.contracts import ImuIncrement, Measurement
 from vdm_aero.nav.engine import UpdateResult
 from vdm_aero.nav.state import IDX
@@ -72,7 +72,10 @@ def _fly_outage(mode: str, deviation_b_ut: np.ndarray, seconds: float) -> tuple[
     """An aligned filter (attitude σ 2 mrad, hard iron σ 0.5 µT, as after an aided flight) in an outage, flying
     level north with a compass carrying ``deviation_b_ut``: its pitch [rad] after ``seconds``, its counts, and the
     measurement model of each compass sample fused, in order."""
-    f = _in_outage(mode)
+    return _fly_outage_from(_in_outage(mode), deviation_b_ut, seconds)
+
+
+def _fly_outage_from(f: Any, deviation_b_ut: np.ndarray, seconds: float) -> tuple[float, dict[str, int], list[str]]:
     fused: list[str] = []
     fuse = f._fuse
 
@@ -125,3 +128,71 @@ def test_in_an_outage_a_compass_whose_field_kept_its_strength_keeps_its_three_ax
     assert "compass_biased" not in counts and len(fused) >= 150 and set(fused) == {"MagField"}
     if not deviation_b_ut.any():
         assert abs(pitch) < 0.002
+
+
+def test_the_swing_reports_the_throttles_it_learnt_on_without_a_turns_brief_cut() -> None:
+    # throttles uniform on [0.6, 0.9] with 0.5 % of the samples at 0 (a turn's cut): the 1st and 99th percentiles
+    # of the uniform part are 0.603 and 0.897, which the histogram's 2 % bins give as 0.60 and 0.90
+    from vdm_aero.nav.mag_deviation import LEARN_AFTER_N, MagDeviation
+
+    dev = MagDeviation(MAG_NED_UT)
+    rng = np.random.default_rng(5)
+    h_b = MAG_NED_UT
+    for k in range(4000):
+        if k == LEARN_AFTER_N - 1:
+            assert dev.throttle_range() is None  # nothing is applied, nor tested, before it is ready
+        thr = 0.0 if k % 200 == 0 else float(rng.uniform(0.6, 0.9))
+        dev.observe(h_b, h_b, thr)
+    lo, hi = dev.throttle_range()  # type: ignore[misc]
+    assert lo == pytest.approx(0.60) and hi == pytest.approx(0.90)
+
+
+def test_a_throttle_held_outside_the_learnt_range_latches_when_the_window_says_a_cut_does_not() -> None:
+    learnt = (0.6, 0.9)
+    check = CompassConsistency()
+    # the throttle's mean starts mid-range (0.75) and decays towards a closed throttle by b = 0.1 s / τ a sample:
+    # 0.75·(1 − b)ᵏ after k samples, below 0.6 − margin at k = ⌈ln((0.6 − margin) / 0.75) / ln(1 − b)⌉
+    b = 1.0 / (RATE_HZ * THROTTLE_TAU_S)
+    k = math.ceil(math.log((learnt[0] - THROTTLE_MARGIN) / 0.75) / math.log(1.0 - b))
+    quiet = np.zeros(3)
+    latched = [j for j in range(600) if check.observe(j / RATE_HZ, quiet, S, FIELD_B_UT, 0.0, learnt)]
+    assert latched == [k - 1] and check.reason == "throttle"
+    # a cut of 3 s in a turn, then the cruise again: the mean dips to 0.75·(1 − b)³⁰ = 0.55, inside the margin
+    check.reset()
+    thr = [0.0] * 30 + [0.75] * 570
+    assert not any(check.observe(j / RATE_HZ, quiet, S, FIELD_B_UT, thr[j], learnt) for j in range(600))
+    assert check.reason is None and 0.75 * (1.0 - b) ** 30 > learnt[0] - THROTTLE_MARGIN
+    # full throttle above a range that never reached it latches too; no range (the swing not ready): never
+    check.reset()
+    assert any(check.observe(j / RATE_HZ, quiet, S, FIELD_B_UT, 1.0, (0.2, 0.5)) for j in range(600))
+    check.reset()
+    assert not any(check.observe(j / RATE_HZ, quiet, S, FIELD_B_UT, 0.0, None) for j in range(600))
+
+
+@pytest.mark.parametrize(("mode", "throttle", "switched"),
+                         [("vdm", 0.0, True), ("vdm", 0.8, False), ("vdm-no-throttle-range", 0.0, False)])  # fmt: skip
+def test_in_an_outage_a_glide_below_the_learnt_throttles_gives_the_heading_only(
+    mode: str, throttle: float, switched: bool
+) -> None:
+    # the swing learnt on throttles 0.7–0.9 (a compass that agreed with the attitude: nothing to correct); the
+    # outage then flies with the throttle closed, or at the cruise's, with a compass whose field never changed, so
+    # the along-field test alone would never latch
+    from vdm_aero.nav.mag_deviation import LEARN_AFTER_N
+
+    f = _in_outage(mode)
+    assert f.mag_deviation is not None and f.x is not None
+    h_b = dcm_from_quat(f.x.q_nb).T @ MAG_NED_UT
+    rng = np.random.default_rng(3)
+    for _ in range(2 * LEARN_AFTER_N):
+        f.mag_deviation.observe(h_b, h_b, float(rng.uniform(0.7, 0.9)))
+    f.servo(f.t_s, np.zeros(3), throttle)
+    _, counts, fused = _fly_outage_from(f, np.zeros(3), 30.0)
+    assert "compass_biased" not in counts  # the field's strength never changed
+    if switched:
+        first = fused.index("MagHeading")
+        assert counts.get("compass_throttle_outside") == 1 and set(fused[first:]) == {"MagHeading"}
+        # the mean from 0.8 (mid-range) to below 0.7 − margin, sample by sample as the unit test above counts
+        b = 1.0 / (RATE_HZ * THROTTLE_TAU_S)
+        assert first == math.ceil(math.log((0.7 - THROTTLE_MARGIN) / 0.8) / math.log(1.0 - b)) - 1
+    else:
+        assert "compass_throttle_outside" not in counts and set(fused) == {"MagField"}

@@ -118,6 +118,8 @@ class ModeSpec:
     # in an outage, the compass's heading alone once its innovation along the field shows a field that changed
     # (vdm_aero.nav.compass_consistency)
     compass_check: bool = False
+    # the same, once the throttle is held outside the throttles the swing learnt the motor's field on
+    compass_throttle_range: bool = False
     description: str = ""
 
     def force_model(self, available: Collection[str]) -> str | None:
@@ -155,9 +157,10 @@ MODES: Final = {
         mag_deviation=True,
         wind_gradient=True,
         compass_check=True,
+        compass_throttle_range=True,
         description="the product: pitot + port air data + force model, air-data FDI, wind relearnt with its "
         "gradient with height, compass deviation learnt in flight, the compass's heading alone in an outage once "
-        "its field's strength is off",
+        "its field's strength is off or the throttle is held outside what the deviation was learnt on",
     ),
 }
 # The product mode with one part taken away, for the benchmark's ablation table (not offered to serve or
@@ -175,7 +178,10 @@ ABLATIONS: Final = {
     # not an ablation but the variant measured against it (docs/navigation.md, "The compass's heading alone")
     "vdm-compass-heading": replace(_VDM, compass_heading_only=True,
                                    description="variant: vdm whose compass gives the heading only in an outage"),
-    "vdm-no-compass-check": replace(_VDM, compass_check=False,
+    "vdm-no-throttle-range": replace(_VDM, compass_throttle_range=False,
+                                     description="ablation: vdm whose compass keeps its three axes through an "
+                                     "outage at throttles its deviation was not learnt on"),
+    "vdm-no-compass-check": replace(_VDM, compass_check=False, compass_throttle_range=False,
                                     description="ablation: vdm whose compass keeps its three axes through an outage "
                                     "whatever its field's strength"),
 }  # fmt: skip
@@ -892,8 +898,11 @@ class NavFilter:
             h = model.jacobian(self.x)
             s = h @ self.engine.P @ h.T + model.covariance()
             earth_b = dcm_from_quat(self.x.q_nb).T @ field_ned
-            if check.observe(t_s, m_b - model.evaluate(self.x), s, earth_b):
-                self.counts["compass_biased"] = self.counts.get("compass_biased", 0) + 1
+            dev = self.mag_deviation
+            learnt = dev.throttle_range() if dev is not None and self.spec.compass_throttle_range else None
+            if check.observe(t_s, m_b - model.evaluate(self.x), s, earth_b, self.inputs.throttle, learnt):
+                key = "compass_biased" if check.reason == "field" else "compass_throttle_outside"
+                self.counts[key] = self.counts.get(key, 0) + 1
         return check.biased
 
     def ap_attitude(self, t_s: float, q_nb: F64Array) -> None:

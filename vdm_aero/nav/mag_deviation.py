@@ -21,6 +21,11 @@ ArduPilot calls acceptable at full throttle). The corrected field m_b − S·ĥ_
 filter fuses; the constant c stays with the filter's hard-iron state, which keeps tracking slow changes.
 Learning stops in an outage (the heading then rests on the magnetometer: learning would chase its own
 drift); the correction stays.
+
+The motor's term is learnt on the throttles the aided flight used, and nowhere else: a glide home with the
+throttle closed, below every throttle of the climb and the cruise, takes k·throttle where the fit has no data,
+so :meth:`MagDeviation.throttle_range` gives the throttles it learnt on (their 1st and 99th percentiles, from a
+histogram) for the compass's check in an outage (:mod:`vdm_aero.nav.compass_consistency`).
 """
 
 from __future__ import annotations
@@ -40,6 +45,8 @@ OFFSET_PRIOR_UT: Final = 50.0  # the constant: loosely held (the filter's hard-i
 RESIDUAL_SIGMA_UT: Final = 2.0  # one sample's residual: the sensor's noise and the aided attitude's error
 LEARN_AFTER_N: Final = 600  # samples (a minute at 10 Hz) before the correction is applied
 SOLVE_EVERY_N: Final = 50
+THROTTLE_BINS: Final = 50  # the learnt throttles' histogram over [0, 1]: 2 % bins
+THROTTLE_QUANTILE: Final = 0.01  # the range's ends: a brief throttle cut in a turn is not what it learnt on
 
 
 @dataclass
@@ -64,6 +71,7 @@ class MagDeviation:
         self._beta: F64Array | None = None
         self._phi_sum = np.zeros(5)
         self._solved_n = 0
+        self._throttle_hist = np.zeros(THROTTLE_BINS)
 
     def _phi(self, h_b_ut: F64Array, throttle: float) -> F64Array:
         return np.array([h_b_ut[0], h_b_ut[1], h_b_ut[2], throttle, 1.0]) * self._scale
@@ -75,7 +83,20 @@ class MagDeviation:
         self.info += w * np.outer(phi, phi)
         self.rhs += w * np.outer(phi, np.asarray(field_b_ut, dtype=np.float64) - h_b_ut)
         self._phi_sum += phi
+        if np.isfinite(throttle):
+            self._throttle_hist[min(max(int(throttle * THROTTLE_BINS), 0), THROTTLE_BINS - 1)] += 1.0
         self.n += 1
+
+    def throttle_range(self) -> tuple[float, float] | None:
+        """The throttles the motor's term was learnt on: the 1st and 99th percentiles of the learnt samples (bin
+        edges: the low end of the lowest bin, the high end of the highest); None until :attr:`ready`."""
+        seen = float(self._throttle_hist.sum())
+        if not self.ready or seen == 0.0:
+            return None
+        cdf = np.cumsum(self._throttle_hist) / seen
+        lo = int(np.searchsorted(cdf, THROTTLE_QUANTILE))
+        hi = int(np.searchsorted(cdf, 1.0 - THROTTLE_QUANTILE))
+        return lo / THROTTLE_BINS, min(hi + 1, THROTTLE_BINS) / THROTTLE_BINS
 
     @property
     def ready(self) -> bool:
