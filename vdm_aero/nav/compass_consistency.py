@@ -57,10 +57,18 @@ THROTTLE_TAU_S: Final = 10.0  # the throttle's mean [s]: a glide holds it for a 
 THROTTLE_MARGIN: Final = 0.3
 
 
+def _weight(dt_s: float, tau_s: float) -> float:
+    """An exponential mean's weight for a sample ``dt_s`` after the last; the first sample's is that of a 10 Hz one,
+    so that a mean starts where it was set, not at one sample."""
+    return min(dt_s / tau_s, 1.0) if dt_s > 0.0 else 0.1 / tau_s
+
+
 @dataclass
 class CompassConsistency:
-    """The exponentially weighted mean of the compass's normalised innovation along the field in an outage (module
-    docstring): :meth:`observe` each sample, :attr:`biased` once the mean passes :data:`THRESHOLD`."""
+    """The exponentially weighted means of the compass's normalised innovation along the field and of the throttle
+    in an outage (module docstring): :meth:`observe` each sample, :attr:`biased` once the first passes
+    :data:`THRESHOLD` or the second leaves the learnt throttles by :data:`THROTTLE_MARGIN` (:attr:`reason` says
+    which)."""
 
     tau_s: float = TAU_S
     threshold: float = THRESHOLD
@@ -91,17 +99,14 @@ class CompassConsistency:
             # throttle cut is not a glide
             if self.throttle_mean is None:
                 self.throttle_mean = 0.5 * (lo + hi)
-            b = min(dt / THROTTLE_TAU_S, 1.0) if dt > 0.0 else 0.1 / THROTTLE_TAU_S
-            self.throttle_mean += b * (throttle - self.throttle_mean)
+            self.throttle_mean += _weight(dt, THROTTLE_TAU_S) * (throttle - self.throttle_mean)
             if not lo - THROTTLE_MARGIN <= self.throttle_mean <= hi + THROTTLE_MARGIN:
                 self.biased, self.biased_at_s, self.reason = True, t_s, "throttle"
                 return True
         u = np.asarray(field_b_ut, dtype=np.float64)
         u = u / np.linalg.norm(u)
         z = float(u @ innovation) / float(np.sqrt(u @ s @ u))
-        # the first sample's weight is that of a 10 Hz one: a mean that starts at zero, not at one sample
-        a = min(dt / self.tau_s, 1.0) if dt > 0.0 else 0.1 / self.tau_s
-        self.mean += a * (z - self.mean)
+        self.mean += _weight(dt, self.tau_s) * (z - self.mean)
         if abs(self.mean) > self.threshold:
             self.biased, self.biased_at_s, self.reason = True, t_s, "field"
             return True
