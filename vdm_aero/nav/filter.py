@@ -336,9 +336,8 @@ class AdaptiveNoise:
     def covariance(self, name: str, r0: F64Array) -> F64Array:
         if name not in self._yy:
             return r0
-        d = np.maximum(np.diag(r0), self._yy[name] - self._hph[name])
         out = r0.copy()
-        out[np.diag_indices_from(out)] = d
+        np.fill_diagonal(out, np.maximum(np.diagonal(r0), self._yy[name] - self._hph[name]))
         return out
 
 
@@ -719,7 +718,7 @@ class NavFilter:
         r = model.covariance()
         if adaptive:
             if not self.in_outage:
-                self.adaptive.observe(model.name, y, np.einsum("ij,jk,ik->i", h, self.engine.P, h))
+                self.adaptive.observe(model.name, y, ((h @ self.engine.P) * h).sum(axis=1))  # diag(HPHᵀ)
             r = self.adaptive.covariance(model.name, r)
         dx, res = self.engine.update(y, h, r, gate, consider)
         name = model.name
