@@ -163,6 +163,28 @@ def test_gate_rejects_a_300_m_jump_and_accepts_a_normal_fix() -> None:
     np.testing.assert_allclose(dx[:3], np.array([1.0, -0.5, 0.3]) / 1.5, rtol=1e-12)  # K = P/(P+R)
 
 
+def test_a_nan_innovation_or_a_singular_s_is_rejected_and_leaves_the_filter_as_it_was() -> None:
+    # the gate reads filterpy's own S⁻¹ after its update and puts the prior back on a rejection
+    rng = np.random.default_rng(3)
+    a = rng.normal(size=(N_ERR, N_ERR))
+    p0 = a @ a.T + np.eye(N_ERR)
+    h = rng.normal(size=(2, N_ERR))
+    r = np.eye(2) * 0.1
+    eng = EkfEngine(p0.copy())
+    dx, res = eng.update(np.array([np.nan, 0.1]), h, r, 1e9)
+    assert not res.accepted and math.isnan(res.nis) and not dx.any()
+    np.testing.assert_array_equal(eng.P, p0)
+    dx, res = eng.update(np.array([0.2, 0.1]), np.zeros((2, N_ERR)), np.zeros((2, 2)), 1e9)  # S = 0
+    assert not res.accepted and res.nis == math.inf and not dx.any()
+    np.testing.assert_array_equal(eng.P, p0)
+    # what it does next is what a fresh engine does: K = PHᵀS⁻¹, NIS = yᵀS⁻¹y with S = HPHᵀ + R
+    y = np.array([0.2, 0.1])
+    dx, res = eng.update(y, h, r, 1e9)
+    s = h @ p0 @ h.T + r
+    assert res.accepted and res.nis == pytest.approx(float(y @ np.linalg.solve(s, y)), rel=1e-10)
+    np.testing.assert_allclose(dx, p0 @ h.T @ np.linalg.solve(s, y), rtol=1e-9, atol=1e-12)
+
+
 def test_consider_update_keeps_considered_states_and_their_covariance_consistent() -> None:
     rng = np.random.default_rng(5)
     a = rng.normal(size=(N_ERR, N_ERR))

@@ -94,17 +94,28 @@ class EkfEngine:
         correction δx (to inject into the nominal state; zero when rejected) and the gate outcome."""
         kf = self._kf
         p = kf.P
-        s, nis = self._s_and_nis(innovation, h, r)
-        if not nis <= gate:
-            return np.zeros(self._n), UpdateResult(False, nis, gate)
         if consider is None or not consider.any():
-            y = innovation.reshape(-1, 1)
+            # filterpy forms S and S⁻¹ for its gain anyway: the gate reads its S⁻¹, and a rejected update puts the
+            # prior back (filterpy assigns a new P, the prior array is untouched). Gating first would form S twice
+            # for every accepted update, the common case (docs/performance.md, third round)
             kf.x = np.zeros((self._n, 1))
-            kf.update(y, lambda _x: h, lambda _x: np.zeros((len(innovation), 1)), R=r)
+            try:
+                kf.update(innovation.reshape(-1, 1), lambda _x: h, lambda _x: np.zeros((len(innovation), 1)), R=r)
+                nis = float(innovation @ kf.SI @ innovation)
+            except np.linalg.LinAlgError:  # a singular S
+                nis = float("inf")
+            except ValueError:  # a non-finite S (scipy's inverse checks it)
+                nis = float("nan")
+            if not nis <= gate:
+                kf.P, kf.x = p, np.zeros((self._n, 1))
+                return np.zeros(self._n), UpdateResult(False, nis, gate)
             dx = np.asarray(kf.x).ravel().copy()
             if self._clone_keys:
-                self._update_clones(p, h, s, np.asarray(kf.K), innovation, optimal=True)
+                self._update_clones(p, h, np.asarray(kf.S), np.asarray(kf.K), innovation, optimal=True)
         else:
+            s, nis = self._s_and_nis(innovation, h, r)
+            if not nis <= gate:
+                return np.zeros(self._n), UpdateResult(False, nis, gate)
             k = np.linalg.solve(s, h @ p).T
             k[consider] = 0.0
             ikh = np.eye(self._n) - k @ h
