@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from vdm_aero.nav.contracts import ImuIncrement, jacobian_fd
+from vdm_aero.nav.contracts import ImuIncrement, evaluate_with_jacobian, jacobian_fd
 from vdm_aero.nav.engine import EkfEngine
 from vdm_aero.nav.ins import InsProcess
 from vdm_aero.nav.measurements import (
@@ -161,6 +161,19 @@ def test_gate_rejects_a_300_m_jump_and_accepts_a_normal_fix() -> None:
     dx, res = eng.update(np.array([1.0, -0.5, 0.3]), h, r, 21.11)
     assert res.accepted and res.nis < 21.11
     np.testing.assert_allclose(dx[:3], np.array([1.0, -0.5, 0.3]) / 1.5, rtol=1e-12)  # K = P/(P+R)
+
+
+@pytest.mark.parametrize("model", MODELS, ids=lambda m: m.name)
+def test_evaluate_with_jacobian_is_the_two_calls_bit_for_bit(model) -> None:  # type: ignore[no-untyped-def]
+    # the filter fuses through the one call; the finite-difference test above checks the two
+    rng = np.random.default_rng(11)
+    for _ in range(3):
+        x = _state(rng)
+        z, h = evaluate_with_jacobian(model, x)
+        np.testing.assert_array_equal(z, model.evaluate(x))
+        np.testing.assert_array_equal(h, model.jacobian(x))
+    air_models = (PortForce, PortAirData, ClassicForce, SyntheticSideslip)
+    assert hasattr(model, "evaluate_with_jacobian") == isinstance(model, air_models)
 
 
 def test_a_nan_innovation_or_a_singular_s_is_rejected_and_leaves_the_filter_as_it_was() -> None:

@@ -16,7 +16,7 @@ import numpy as np
 from vdm_aero._typing import F64Array
 from vdm_aero.nav.state import N_ERR, NavState
 
-__all__ = ["ImuIncrement", "Measurement", "MeasurementModel", "ProcessModel", "jacobian_fd"]
+__all__ = ["ImuIncrement", "Measurement", "MeasurementModel", "ProcessModel", "evaluate_with_jacobian", "jacobian_fd"]
 
 
 @dataclass(frozen=True)
@@ -60,6 +60,17 @@ class Measurement:
     t_s: float
     z: F64Array
     model: MeasurementModel
+
+
+def evaluate_with_jacobian(model: MeasurementModel, x: NavState) -> tuple[F64Array, F64Array]:
+    """h(x) and ∂h/∂δx at the same x: the model's own ``evaluate_with_jacobian`` where it has one (navlie's
+    contract has the same optional method; the air-data models share their kinematics between the two, a third
+    of a port frame's fusion), else its two calls."""
+    both = getattr(model, "evaluate_with_jacobian", None)
+    if both is not None:
+        z, h = both(x)
+        return z, h
+    return model.evaluate(x), model.jacobian(x)
 
 
 def jacobian_fd(model: MeasurementModel, x: NavState, step: float = 1e-6) -> F64Array:

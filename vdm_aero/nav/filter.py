@@ -40,7 +40,7 @@ from vdm_aero.nav.airdata_fdi import (
     wind_change_threshold_m_s,
 )
 from vdm_aero.nav.compass_consistency import CompassConsistency
-from vdm_aero.nav.contracts import ImuIncrement, Measurement
+from vdm_aero.nav.contracts import ImuIncrement, Measurement, evaluate_with_jacobian
 from vdm_aero.nav.design_fit import StabilityDerivatives
 from vdm_aero.nav.engine import EkfEngine, UpdateResult
 from vdm_aero.nav.ins import InsProcess, ProcessNoise
@@ -373,7 +373,7 @@ class TurbulenceIntensity:
             k = dt_s / min(self.seconds, TURBULENCE_AVERAGE_S)
             self.second_moment = self.second_moment + k * (m2 - self.second_moment)
         lo, hi = TURBULENCE_SIGMA_BOUNDS_M_S
-        return np.clip(np.sqrt(self.second_moment), lo, hi)
+        return np.minimum(np.maximum(np.sqrt(self.second_moment), lo), hi)  # np.clip, without its wrapper's cost
 
 
 class NavFilter:
@@ -708,8 +708,11 @@ class NavFilter:
         measurement dimension's)."""
         assert self.x is not None and self.engine is not None
         model = meas.model
-        y = meas.z - model.evaluate(state if state is not None else self.x)
-        h = model.jacobian(self.x)
+        if state is None:
+            z_hat, h = evaluate_with_jacobian(model, self.x)
+        else:  # the innovation against the buffered state, the Jacobian at the current one
+            z_hat, h = model.evaluate(state), model.jacobian(self.x)
+        y = meas.z - z_hat
         dim = len(y)
         if gate is None:
             gate = GATE_CHI2.get(dim, float(dim + 6.0 * math.sqrt(2.0 * dim)))
@@ -739,8 +742,8 @@ class NavFilter:
         """A measurement's normalised innovation squared against the current state, without fusing it."""
         assert self.x is not None and self.engine is not None
         model = meas.model
-        y = meas.z - model.evaluate(self.x)
-        h = model.jacobian(self.x)
+        z_hat, h = evaluate_with_jacobian(model, self.x)
+        y = meas.z - z_hat
         r = self.adaptive.covariance(model.name, model.covariance()) if adaptive else model.covariance()
         return self.engine.nis(y, h, r)
 

@@ -69,7 +69,7 @@ class AirKinematics:
     def of(cls, x: NavState) -> AirKinematics:
         c_bn = dcm_from_quat(x.q_nb).T
         v_b = c_bn @ (x.v_ned - x.wind_ned - x.gust_ned)
-        u, v, w = (float(a) for a in v_b)
+        u, v, w = v_b.tolist()
         speed = max(math.sqrt(u * u + v * v + w * w), 1e-3)
         uw2 = max(u * u + w * w, 1e-6)
         s = max(min(v / speed, 1.0), -1.0)
@@ -334,9 +334,12 @@ class SyntheticSideslip:
         return np.array([k.v_b[1] / k.speed])
 
     def jacobian(self, x: NavState) -> F64Array:
+        return self.evaluate_with_jacobian(x)[1]
+
+    def evaluate_with_jacobian(self, x: NavState) -> tuple[F64Array, F64Array]:
         k = AirKinematics.of(x)
         d = _E_Y / k.speed - k.v_b[1] * k.v_b / k.speed**3
-        return k.chain(d[None, :])
+        return np.array([k.v_b[1] / k.speed]), k.chain(d[None, :])
 
     def covariance(self) -> F64Array:
         return _diag((self.sigma,))
@@ -351,17 +354,23 @@ class PortAirData:
     name: str = "ports_airdata"
 
     def evaluate(self, x: NavState) -> F64Array:
-        k = AirKinematics.of(x)
-        a = x.aero
-        return np.array([a[_SCALE] * k.speed, k.alpha + a[_ALPHA], k.beta + a[_BETA]])
+        return self._value(x, AirKinematics.of(x))
 
     def jacobian(self, x: NavState) -> F64Array:
+        return self.evaluate_with_jacobian(x)[1]
+
+    def evaluate_with_jacobian(self, x: NavState) -> tuple[F64Array, F64Array]:
         k = AirKinematics.of(x)
         h = k.chain(np.vstack([x.aero[_SCALE] * k.d_speed, k.d_alpha, k.d_beta]))
         h[0, AERO_INDEX["airspeed_scale"]] = k.speed
         h[1, AERO_INDEX["alpha_bias_rad"]] = 1.0
         h[2, AERO_INDEX["beta_bias_rad"]] = 1.0
-        return h
+        return self._value(x, k), h
+
+    @staticmethod
+    def _value(x: NavState, k: AirKinematics) -> F64Array:
+        a = x.aero
+        return np.array([a[_SCALE] * k.speed, k.alpha + a[_ALPHA], k.beta + a[_BETA]])
 
     def covariance(self) -> F64Array:
         return self.cov
@@ -418,11 +427,14 @@ class PortForce:
         return _force_rows(x, AirKinematics.of(x), self.coeffs_xyz, self.ctx)[0]
 
     def jacobian(self, x: NavState) -> F64Array:
+        return self.evaluate_with_jacobian(x)[1]
+
+    def evaluate_with_jacobian(self, x: NavState) -> tuple[F64Array, F64Array]:
         k = AirKinematics.of(x)
-        _, d, qsm, _ = _force_rows(x, k, self.coeffs_xyz, self.ctx)
+        z, d, qsm, _ = _force_rows(x, k, self.coeffs_xyz, self.ctx)
         h = k.chain(d)
         _force_params(h, x, qsm, self.coeffs_xyz, self.ctx, k)
-        return h
+        return z, h
 
     def covariance(self) -> F64Array:
         return _diag(self.sigma_m_s2)
@@ -449,14 +461,17 @@ class ClassicForce:
         return _force_rows(x, k, c, self.ctx)[0]
 
     def jacobian(self, x: NavState) -> F64Array:
+        return self.evaluate_with_jacobian(x)[1]
+
+    def evaluate_with_jacobian(self, x: NavState) -> tuple[F64Array, F64Array]:
         k = AirKinematics.of(x)
         c, grad = self._coeffs(k)  # grad (3, 3): ∂C/∂(V, α, β)
-        _, d, qsm, _ = _force_rows(x, k, c, self.ctx)
+        z, d, qsm, _ = _force_rows(x, k, c, self.ctx)
         scale = np.array([1.0, 1.0, x.aero[_CZ]])
         d_c = grad @ np.vstack([k.d_speed, k.d_alpha, k.d_beta])  # ∂C/∂v_b
         h = k.chain(d + qsm * scale[:, None] * d_c)
         _force_params(h, x, qsm, c, self.ctx, k)
-        return h
+        return z, h
 
     def covariance(self) -> F64Array:
         return _diag(self.sigma_m_s2)
