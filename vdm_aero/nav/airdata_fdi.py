@@ -157,6 +157,9 @@ class PitotUnderRead:
     # the forgetting least squares in (1, α): normal matrix and right-hand side, the prior on the slope apart
     _ata: F64Array = field(default_factory=lambda: np.zeros((2, 2)))
     _atb: F64Array = field(default_factory=lambda: np.zeros(2))
+    # its solution (intercept, slope), solved again only after the sums move: the pair and the under-read test
+    # both read the line at every pitot sample, and a 2 × 2 solve costs as much as a measurement's Jacobian
+    _line: tuple[float, float] | None = None
 
     @property
     def alarm(self) -> bool:
@@ -166,9 +169,12 @@ class PitotUnderRead:
         """The healthy difference [m/s] at ``alpha_rad`` (0 before the first observation)."""
         if self.first_t_s is None:
             return 0.0
-        prior = np.diag([0.0, self.slope_prior_m_s_per_rad**-2])
-        intercept, slope = np.linalg.solve(self._ata + prior, self._atb)
-        return float(intercept + slope * alpha_rad)
+        if self._line is None:
+            prior = np.diag([0.0, self.slope_prior_m_s_per_rad**-2])
+            intercept, slope = np.linalg.solve(self._ata + prior, self._atb)
+            self._line = (float(intercept), float(slope))
+        intercept, slope = self._line
+        return intercept + slope * alpha_rad
 
     @property
     def bias_m_s(self) -> float:
@@ -186,7 +192,7 @@ class PitotUnderRead:
         x = np.array([1.0, self.alpha_rad])
         if self.first_t_s is None or self.last_t_s is None:
             self.first_t_s = self.last_t_s = t_s
-            self._ata, self._atb = np.outer(x, x), difference_m_s * x
+            self._ata, self._atb, self._line = np.outer(x, x), difference_m_s * x, None
             self.residual_m_s, self.cusum_m = 0.0, 0.0
             return
         dt = max(t_s - self.last_t_s, 0.0)
@@ -203,6 +209,7 @@ class PitotUnderRead:
             b = math.exp(-dt / min(self.bias_tau_s, max(age, dt)))  # a running mean until the time constant
             self._ata = b * self._ata + (1.0 - b) * np.outer(x, x)
             self._atb = b * self._atb + (1.0 - b) * difference_m_s * x
+            self._line = None
 
     def restart(self) -> None:
         """After the pitot's exclusion: the sum starts again (the bias is kept: it is the healthy pair's)."""
