@@ -159,7 +159,7 @@ class PitotUnderRead:
     _atb: F64Array = field(default_factory=lambda: np.zeros(2))
     # its solution (intercept, slope), solved again only after the sums move: the pair and the under-read test
     # both read the line at every pitot sample, and a 2 × 2 solve costs as much as a measurement's Jacobian
-    _line: tuple[float, float] | None = None
+    _line: tuple[float, float] | None = field(default=None, init=False, repr=False, compare=False)
 
     @property
     def alarm(self) -> bool:
