@@ -37,9 +37,12 @@ typecheck: $(STAMP)
 
 # two workers: the end-to-end tests wait on real-time flights while the other core computes; a module stays on
 # one worker (its fixtures are built once), session fixtures are built once for both, and the real-time
-# flights start first, in the order tests/conftest.py's REAL_TIME_FIRST gives (loadscope's own reordering off)
+# flights start first, in the order tests/conftest.py's REAL_TIME_FIRST gives (loadscope's own reordering off).
+# One OpenBLAS thread per process: the workers and the flights' processes already fill both cores, and numpy's
+# second BLAS thread only competes with them (the whole suite, one pair of runs: 969 s of CPU against 1,019 s,
+# 8 min 31 s against 8 min 53 s; docs/performance.md, "The test suite's time")
 test: lint typecheck bytecode
-	$(BIN)/python -m pytest -q -n 2 --dist loadscope --no-loadscope-reorder
+	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m pytest -q -n 2 --dist loadscope --no-loadscope-reorder
 
 bench: bytecode
 	mkdir -p $(OUT)/bench
