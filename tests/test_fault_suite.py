@@ -8,13 +8,14 @@ from __future__ import annotations
 import math
 import os
 import re
+import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 
-from vdm_aero_cli.fault_suite import SETTLE_S, fly_faults, nav_log_health, score_windows, suite_flight
+from vdm_aero_cli.fault_suite import SETTLE_S, WorldClock, fly_faults, nav_log_health, score_windows, suite_flight
 from vdm_aero_cli.service_sitl import ServiceRun, ServiceTrack, site_mag_field_ut
 
 SIGNING_KEY_HEX = "5a" * 32
@@ -120,6 +121,33 @@ def test_kill_restart_restores_and_a_full_disk_is_survived(fault_flight: dict[st
     assert "cannot write the state: No space left on device" in log and "navigation goes on" in log
     assert "STORAGE FAILING" in log  # in the status line while the disk is full
     assert sc["state directory full"]["max_error_m"] < 6.0
+    # the disk filled and was freed at its window's world times: the harness follows the mock's own clock (a wall
+    # clock × the speed ran ahead of a world that could not keep the speed, and put the full disk into a port
+    # fault's window). The navigation log's longest gap around the window is the full disk's: it starts within
+    # the window's first 4 s (the log's last page still takes up to 4 KB of rows: 18 rows of ~220 bytes at 5 Hz,
+    # 3.7 s) and ends within 2 s of the window's end
+    t, _, _ = nav_log_health(res["work"])
+    a, b = fault_flight["windows"]["state directory full"]
+    near = t[(t > a - 3.0) & (t < b + 3.0)]
+    j = int(np.argmax(np.diff(near)))
+    assert a <= near[j] < a + 4.0 and b <= near[j + 1] < b + 2.0, (near[j], near[j + 1])
+
+
+def test_the_harness_clock_is_the_worlds_own() -> None:
+    """The mock's ``--progress`` lines set the clock the outside faults wait for; every other line is kept."""
+    r, w = os.pipe()
+    with os.fdopen(r, "rb") as reader, os.fdopen(w, "wb") as writer:
+        clock = WorldClock(reader)
+        writer.write(b"world time 1 s\nfaults applied: {}\nworld time 2 s\n")
+        writer.flush()
+        deadline = time.monotonic() + 5.0
+        while clock.now_s < 2.0 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert clock.now_s == 2.0
+        writer.write(b'{"steps": 3}\n')
+        writer.close()
+        clock.join(timeout_s=5.0)
+    assert clock.lines == [b"faults applied: {}\n", b'{"steps": 3}\n']
 
 
 def test_an_unsigned_rogue_sender_injects_nothing(fault_flight: dict[str, Any]) -> None:

@@ -8,6 +8,7 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 
@@ -84,12 +85,15 @@ def test_sitl_flies_a_scenario_in_real_time_against_a_client(tmp_path: Path) -> 
     assert (tmp_path / "f.tlog").stat().st_size > 0
 
 
-def test_plot_flight_from_a_fast_run(tmp_path: Path) -> None:
+def test_plot_flight_from_a_fast_run(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from vdm_aero_cli.main import main
 
     truth = tmp_path / "truth.npz"
     assert main(["sitl", "--scenario", "loiter-outage300", "--connect", "null", "--speed", "0", "--duration-s", "20",
-                 "--truth", str(truth)]) == 0  # fmt: skip
+                 "--truth", str(truth), "--progress"]) == 0  # fmt: skip
+    # --progress: the world's own clock, one line per second flown (a harness acts on it, not on the wall clock)
+    ticks = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("world time ")]
+    assert ticks == [f"world time {t} s" for t in range(1, 21)]
     assert main(["plot-flight", str(truth), "--out", str(tmp_path / "f.png")]) == 0
     assert (tmp_path / "f.png").read_bytes()[:4] == b"\x89PNG"
 

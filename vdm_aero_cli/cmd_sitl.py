@@ -11,6 +11,8 @@ from typing import Any
 
 from vdm_aero.errors import UserInputError
 
+WORLD_TIME_PREFIX = "world time "  # --progress: one line per second of world time flown
+
 
 def register(sub: Any) -> None:
     p = sub.add_parser(
@@ -35,6 +37,9 @@ def register(sub: Any) -> None:
     p.add_argument("--connect", metavar="URL", default="udpout:127.0.0.1:14550")
     p.add_argument("--speed", type=float, default=1.0, help="world seconds per wall second; 0 = as fast as possible")
     p.add_argument("--duration-s", type=float, help="world time to fly [s] (default: the scenario's duration)")
+    p.add_argument("--progress", action="store_true",
+                   help="print 'world time T s' after each second of world time flown (a harness that acts at "
+                   "world times follows this clock: on a slow machine the world falls behind --speed)")  # fmt: skip
     p.add_argument("--tlog", type=Path, help="write a MAVLink telemetry log of everything sent and received")
     p.add_argument("--truth", type=Path, help="write the truth trajectory (see docs/sitl.md)")
     p.add_argument("--signing-key", metavar="HEX", help="MAVLink 2 signing key, 64 hex digits (32 bytes)")
@@ -167,6 +172,7 @@ def run_sitl_cmd(args: argparse.Namespace) -> int:
                 **({"loop_rate_hz": args.loop_rate_hz} if args.loop_rate_hz else {}),
             ),
             on_ready=lambda where: print(f"mock autopilot on {where}, scenario {scenario.name}", flush=True),
+            on_second=(lambda t: print(f"{WORLD_TIME_PREFIX}{t:.0f} s", flush=True)) if args.progress else None,
         )
     except FlightEnvelopeError as e:  # the simulated aircraft crashed or lost control: an outcome, not a bug
         print(f"vdm-aero: flight ended: {e}", file=sys.stderr)

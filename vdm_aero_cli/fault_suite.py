@@ -27,12 +27,13 @@ import threading
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 import yaml
 
 from sim.sitl.faults import Fault, rogue_sender
+from vdm_aero_cli.cmd_sitl import WORLD_TIME_PREFIX
 from vdm_aero_cli.service_sitl import (
     VDM_AERO,
     NotifyListener,
@@ -134,15 +135,39 @@ def _inet(hex_addr: str) -> str:
     return f"{host}:{int(port, 16)}"
 
 
-def _sample(sup: _Supervisor, t0: float, speed: float, every_s: float, stop: threading.Event,
+class WorldClock:
+    """The mock autopilot's world time, from its ``--progress`` lines on stdout (read in a thread, which also
+    keeps every other line for the caller). The faults done from outside happen at world times: a wall clock
+    × the speed runs ahead of the world whenever the mock cannot keep that speed (a slow hour of a shared
+    machine), and then put a full disk into a port fault's window (2026-11-29, a CI run at 2.5× slow)."""
+
+    def __init__(self, stdout: IO[bytes]) -> None:
+        self.now_s = 0.0
+        self.lines: list[bytes] = []
+        self._thread = threading.Thread(target=self._read, args=(stdout,), daemon=True)
+        self._thread.start()
+
+    def _read(self, stdout: IO[bytes]) -> None:
+        prefix = WORLD_TIME_PREFIX.encode()
+        for line in stdout:
+            if line.startswith(prefix):
+                self.now_s = float(line[len(prefix) :].split()[0])
+            else:
+                self.lines.append(line)
+
+    def join(self, timeout_s: float) -> None:
+        self._thread.join(timeout_s)
+
+
+def _sample(sup: _Supervisor, t0: float, clock: WorldClock, every_s: float, stop: threading.Event,
             out: list[dict[str, float]]) -> None:  # fmt: skip
-    """The service's resident memory [MB] and CPU time [s] against the (estimated) autopilot time."""
+    """The service's resident memory [MB] and CPU time [s] against the autopilot time (to its last second)."""
     while not stop.wait(every_s):
         pid = sup.proc.pid
         with contextlib.suppress(OSError, ValueError, IndexError):
             rss = next(int(ln.split()[1]) for ln in Path(f"/proc/{pid}/status").read_text().splitlines()
                        if ln.startswith("VmRSS:")) / 1024.0  # fmt: skip
-            out.append({"t_s": (time.monotonic() - t0) * speed, "wall_s": time.monotonic() - t0, "rss_mb": rss,
+            out.append({"t_s": clock.now_s, "wall_s": time.monotonic() - t0, "rss_mb": rss,
                         "cpu_s": _cpu_s(pid), "pid": pid})  # fmt: skip
 
 
@@ -197,7 +222,7 @@ def fly_faults(flight: FaultFlight, work: Path, *, mag_field_ned_ut: tuple[float
         cmd = [*VDM_AERO, "sitl", "--nav-scenario", run.scenario, "--seed", str(run.seed), "--outage-s",
                f"{run.outage_s:g}", "--ports-model", str(run.deim), "--connect", f"udpout:127.0.0.1:{port}",
                "--speed", f"{run.speed:g}", "--truth", str(work / "truth.npz"), "--faults", str(work / "faults.yaml"),
-               "--loop-rate-hz", f"{run.loop_rate_hz:g}", "--json"]  # fmt: skip
+               "--loop-rate-hz", f"{run.loop_rate_hz:g}", "--json", "--progress"]  # fmt: skip
         if run.stop_after_s is not None:
             cmd += ["--duration-s", f"{run.stop_after_s:g}"]
         if run.signing_key_hex is not None:
@@ -210,11 +235,16 @@ def fly_faults(flight: FaultFlight, work: Path, *, mag_field_ned_ut: tuple[float
             if line.startswith(b"mock autopilot on "):
                 break
         t0 = time.monotonic()
+        clock = WorldClock(mock.stdout)
+        err_chunks: list[bytes] = []  # drained as it comes: a full pipe would stall the mock
+        assert mock.stderr is not None
+        err_reader = threading.Thread(target=lambda f: err_chunks.append(f.read()), args=(mock.stderr,), daemon=True)
+        err_reader.start()
         sampler_stop = threading.Event()
         if flight.sample_every_s is not None:
-            threading.Thread(target=_sample, args=(sup, t0, run.speed, flight.sample_every_s, sampler_stop, samples),
+            threading.Thread(target=_sample, args=(sup, t0, clock, flight.sample_every_s, sampler_stop, samples),
                              daemon=True).start()  # fmt: skip
-        # the mock paces world time at run.speed from its start: the actions below run on that clock
+        # the actions below run on the world's clock, which the mock reports once a world second
         actions = sorted([(t, "kill9") for t in flight.kill9_at_s]
                          + ([(flight.disk_full_s[0], "fill"), (flight.disk_full_s[1], "free")] if flight.disk_full_s
                             else [])
@@ -222,11 +252,13 @@ def fly_faults(flight: FaultFlight, work: Path, *, mag_field_ned_ut: tuple[float
                             else []))  # fmt: skip
         filler: Path | None = None
         for t_world, what in actions:
-            while mock.poll() is None and (time.monotonic() - t0) * run.speed < t_world:
+            while mock.poll() is None and clock.now_s < math.floor(t_world):
                 time.sleep(0.02)
+            # the fraction past the last whole second, at the speed the world is keeping
+            time.sleep(max(0.0, t_world - math.floor(t_world)) / run.speed)
             if mock.poll() is not None:
                 break
-            events.append(((time.monotonic() - t0) * run.speed, what))
+            events.append((clock.now_s, what))
             if what == "kill9":
                 sup.kill9_and_restart()
             elif what == "fill":
@@ -241,7 +273,10 @@ def fly_faults(flight: FaultFlight, work: Path, *, mag_field_ned_ut: tuple[float
                 rogue_stop.set()
             if what == "rogue":
                 sockets = _sockets(sup.proc.pid)  # long after its start, and under attack
-        out, err = mock.communicate(timeout=timeout_s)
+        mock.wait(timeout=timeout_s)
+        clock.join(timeout_s=10.0)
+        err_reader.join(timeout=10.0)
+        out, err = b"".join(clock.lines), b"".join(err_chunks)
         if mock.returncode != 0:
             raise RuntimeError(f"the mock autopilot failed: {err.decode(errors='replace')[-2000:]}")
         wall = time.monotonic() - t0

@@ -349,8 +349,9 @@ class MockAutopilot:
     ) -> None:
         self.close()
 
-    def run(self, duration_s: float) -> RunSummary:
-        """Fly ``duration_s`` of world time (or until ``stop()``), then write the truth file. Blocking."""
+    def run(self, duration_s: float, on_second: Callable[[float], None] | None = None) -> RunSummary:
+        """Fly ``duration_s`` of world time (or until ``stop()``), then write the truth file. Blocking.
+        ``on_second(t)`` after each whole second of world time ``t`` [s] flown."""
         if self._ran:
             raise RuntimeError("MockAutopilot.run may be called once")
         if self._closed:
@@ -358,6 +359,7 @@ class MockAutopilot:
         self._ran = True
         dt = self._world.dt_s
         n_steps = math.ceil(duration_s / dt - 1e-9)
+        steps_per_s = max(1, round(1.0 / dt))
         wall0 = time.monotonic()
         self._wall_at_t = wall0
         max_lag = 0.0
@@ -382,6 +384,8 @@ class MockAutopilot:
                     max_lag = max(max_lag, time.monotonic() - target)
                 self._process(self._world.step(), dt)
                 steps += 1
+                if on_second is not None and steps % steps_per_s == 0:
+                    on_second(steps * dt)
             wall_end = time.monotonic()
         finally:
             if self._tlog is not None:
@@ -752,11 +756,14 @@ def run_sitl(
     ports_as_debug_array: bool = False,
     options: AutopilotOptions | None = None,
     on_ready: Callable[[str], None] | None = None,
+    on_second: Callable[[float], None] | None = None,
 ) -> RunSummary:
     """Run the mock autopilot for the CLI: open ``url``, report it through ``on_ready``, fly, close.
 
     ``on_ready`` receives the link description (e.g. ``"pty /dev/pts/4"``, ``"udpin 0.0.0.0:14550"``) before
-    the run starts, so a pty path or a bound port can be shown to the user.
+    the run starts, so a pty path or a bound port can be shown to the user; ``on_second`` receives the world
+    time after each whole world second flown (a harness that acts at world times follows the world's clock, which
+    falls behind ``speed`` × the wall clock on a machine too slow for that speed).
     """
     with MockAutopilot(
         world,
@@ -772,4 +779,4 @@ def run_sitl(
     ) as ap:
         if on_ready is not None:
             on_ready(ap.link.description)
-        return ap.run(duration_s)
+        return ap.run(duration_s, on_second)
