@@ -139,7 +139,7 @@ class WorldClock:
     """The mock autopilot's world time, from its ``--progress`` lines on stdout (read in a thread, which also
     keeps every other line for the caller). The faults done from outside happen at world times: a wall clock
     × the speed runs ahead of the world whenever the mock cannot keep that speed (a slow hour of a shared
-    machine), and then put a full disk into a port fault's window (2026-11-29, a CI run at 2.5× slow)."""
+    machine), and then put a full disk into a port fault's window (2026-11-29, a test run at 2.5× slow)."""
 
     def __init__(self, stdout: IO[bytes]) -> None:
         self.now_s = 0.0
