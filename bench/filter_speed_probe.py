@@ -9,6 +9,11 @@ filter with the driver in front of it, and the port front end only for a mode th
 service and the replay run per mode).
 
     python bench/filter_speed_probe.py ARTIFACTS_DIR --seconds 120 --repeats 5 --modes ins,vdm
+
+``--engine-share`` times, in the same runs, the calls into filterpy's ``ExtendedKalmanFilter.predict`` and
+``update`` (the engine issue 25 keeps) and reports their share of the step: a step cannot get faster than
+that share allows while those calls stay in it, whatever the rest of the code costs (docs/performance.md,
+"The ceiling filterpy sets").
 """
 
 from __future__ import annotations
@@ -18,6 +23,8 @@ import json
 import statistics
 import sys
 import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -26,7 +33,37 @@ import numpy as np
 FILTER_RATE_HZ = 50.0
 
 
-def measure(artifacts_dir: Path, seconds: float, repeats: int, modes: list[str]) -> dict[str, Any]:
+@contextmanager
+def engine_clock() -> Iterator[dict[str, float]]:
+    """CPU seconds and calls spent inside filterpy's EKF ``predict`` and ``update`` while the block runs (the
+    class's methods are wrapped for its duration and put back after)."""
+    from filterpy.kalman import ExtendedKalmanFilter
+
+    acc = {"cpu_s": 0.0, "calls": 0.0}
+    originals = {name: getattr(ExtendedKalmanFilter, name) for name in ("predict", "update")}
+
+    def timed(method: Callable[..., Any]) -> Callable[..., Any]:
+        def call(self: Any, *args: Any, **kwargs: Any) -> Any:
+            t0 = time.process_time()
+            try:
+                return method(self, *args, **kwargs)
+            finally:
+                acc["cpu_s"] += time.process_time() - t0
+                acc["calls"] += 1
+
+        return call
+
+    try:
+        for name, method in originals.items():
+            setattr(ExtendedKalmanFilter, name, timed(method))
+        yield acc
+    finally:
+        for name, method in originals.items():
+            setattr(ExtendedKalmanFilter, name, method)
+
+
+def measure(artifacts_dir: Path, seconds: float, repeats: int, modes: list[str], *,
+            engine_share: bool = False) -> dict[str, Any]:  # fmt: skip
     from vdm_aero.geodesy import LocalFrame
     from vdm_aero.nav.filter import MODES, NavConfig, NavFilter, mode_spec
     from vdm_aero.nav.ports_frontend import PortFrontEnd
@@ -49,7 +86,7 @@ def measure(artifacts_dir: Path, seconds: float, repeats: int, modes: list[str])
     for m in modes or list(MODES):
         spec = mode_spec(m)
         reads_ports = spec.ports_airdata or spec.force in ("deim", "deim-nn")
-        times = []
+        times, shares = [], []
         for _ in range(repeats):
             fe = (
                 PortFrontEnd(nav.pressure_model, dict(nav.models), range_pa=500.0, noise_pa=0.2)
@@ -57,9 +94,22 @@ def measure(artifacts_dir: Path, seconds: float, repeats: int, modes: list[str])
                 else None
             )
             runner = LogRunner(stream, {m: NavFilter(m, cfg, nav.derivatives)}, fe)
+            if engine_share:
+                with engine_clock() as engine:
+                    t0 = time.process_time()
+                    runner.run_until(seconds - 1.0)
+                    cpu_s = time.process_time() - t0
+                shares.append(engine["cpu_s"] / cpu_s)
+                continue
             t0 = time.process_time()
             runner.run_until(seconds - 1.0)
             times.append(time.process_time() - t0)
+        if engine_share:
+            out[m] = {
+                "engine_share": round(statistics.median(shares), 3),
+                "runs_engine_share": [round(v, 3) for v in shares],
+            }
+            continue
         cpu = statistics.median(times)
         out[m] = {"us_per_step": round(1e6 * cpu / steps, 1), "x_real_time": round((seconds - 1.0) / cpu, 1),
                   "runs_us_per_step": [round(1e6 * t / steps, 1) for t in times]}  # fmt: skip
@@ -72,9 +122,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seconds", type=float, default=120.0)
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--modes", default="")
+    ap.add_argument(
+        "--engine-share",
+        action="store_true",
+        help="report the share of each step spent in filterpy's predict and update instead of the time",
+    )
     args = ap.parse_args(argv)
     modes = [m for m in args.modes.split(",") if m]
-    json.dump(measure(args.artifacts, args.seconds, args.repeats, modes), sys.stdout)
+    json.dump(measure(args.artifacts, args.seconds, args.repeats, modes, engine_share=args.engine_share), sys.stdout)
     return 0
 
 
