@@ -86,7 +86,7 @@ def measure(artifacts_dir: Path, seconds: float, repeats: int, modes: list[str],
     for m in modes or list(MODES):
         spec = mode_spec(m)
         reads_ports = spec.ports_airdata or spec.force in ("deim", "deim-nn")
-        times, shares = [], []
+        times, shares, calls = [], [], []
         for _ in range(repeats):
             fe = (
                 PortFrontEnd(nav.pressure_model, dict(nav.models), range_pa=500.0, noise_pa=0.2)
@@ -100,6 +100,7 @@ def measure(artifacts_dir: Path, seconds: float, repeats: int, modes: list[str],
                     runner.run_until(seconds - 1.0)
                     cpu_s = time.process_time() - t0
                 shares.append(engine["cpu_s"] / cpu_s)
+                calls.append(engine["calls"] / steps)
                 continue
             t0 = time.process_time()
             runner.run_until(seconds - 1.0)
@@ -108,6 +109,7 @@ def measure(artifacts_dir: Path, seconds: float, repeats: int, modes: list[str],
             out[m] = {
                 "engine_share": round(statistics.median(shares), 3),
                 "runs_engine_share": [round(v, 3) for v in shares],
+                "engine_calls_per_step": round(statistics.median(calls), 2),
             }
             continue
         cpu = statistics.median(times)
