@@ -300,3 +300,82 @@ def test_an_autopilot_reboot_with_gnss_at_hand_starts_the_pose_again_from_the_ne
     assert f.x is not None and _h_error(world, f, r.t_s) < 10.0
     assert f.counts.get("gnss_lockout_reinitialised", 0) == 0
     np.testing.assert_allclose(f.x.b_gyro_b, bias_before, atol=2e-3)  # the slow states were kept
+
+
+def _imu_with_holes(sensors: dict[str, np.ndarray], rng: np.random.Generator, holes_per_s: float, mean_hole_s: float
+                    ) -> dict[str, np.ndarray]:  # fmt: skip
+    """The IMU stream with bursts of samples lost: holes start as a Poisson process, their lengths exponential."""
+    t = sensors["imu_t_s"]
+    keep = np.ones(len(t), dtype=bool)
+    start = float(t[0])
+    while start < t[-1]:
+        start += rng.exponential(1.0 / holes_per_s)
+        keep &= ~((t >= start) & (t < start + rng.exponential(mean_hole_s)))
+    out = dict(sensors)
+    for k in ("imu_t_s", "imu_gyro_b_rad_s", "imu_accel_b_m_s2", "imu_temperature_c"):
+        out[k] = sensors[k][keep]
+    return out
+
+
+def _aided_errors(w: dict[str, Any], r: LogRunner, mode: str) -> tuple[np.ndarray, np.ndarray]:
+    """Horizontal error [m] and its Mahalanobis² against the filter's own σ, every 0.5 s after 40 s, each at the
+    filter's own time (inside a hole it has not got further)."""
+    f = r.filters[mode]
+    e: list[float] = []
+    m2: list[float] = []
+
+    def on_step(t: float) -> None:
+        if t > 40.0 and round(t * 50) % 25 == 0 and f.x is not None and f.engine is not None:
+            tt = w["truth"]["t_s"]
+            d = f.x.p_ned[:2] - np.array([np.interp(f.t_s, tt, w["truth"]["pos_ned_m"][:, i]) for i in range(2)])
+            e.append(float(np.hypot(*d)))
+            m2.append(float(d @ np.linalg.solve(f.engine.P[:2, :2], d)))
+
+    r.run_until(DURATION_S - 5.0, on_step)
+    return np.array(e), np.array(m2)
+
+
+def test_a_lossy_links_imu_holes_are_bridged_and_its_fixes_still_fused(world: dict[str, Any]) -> None:
+    """Bursts of IMU samples lost, as a starved MAVProxy forwarded them at 4× real time (this machine, 2026-11-29:
+    39 % of RAW_IMU arrived, in holes of 0.1–1.5 s, a few a second): a third of the samples go here. Bridged on
+    the rates either side of a short hole and with the fixes that arrive inside one held until the IMU reaches
+    them, the filter fuses its fixes, stays consistent and loses little. Coasting level through every hole and
+    fusing those fixes against a state the hole's length old instead gated out a fifth of the fixes and locked
+    GNSS out on survey seed 3 (docs/navigation.md, "A lossy link")."""
+    holes = _imu_with_holes(world["sensors"], np.random.default_rng(7), holes_per_s=2.5, mean_hole_s=0.15)
+    assert 0.55 < len(holes["imu_t_s"]) / len(world["sensors"]["imu_t_s"]) < 0.8
+    e_ref, _ = _aided_errors(world, _runner(world, ("airspeed-dr",)), "airspeed-dr")
+    r = _runner(world, ("airspeed-dr",), holes)
+    e, m2 = _aided_errors(world, r, "airspeed-dr")
+    f = r.filters["airspeed-dr"]
+    fixes = int(np.sum(world["sensors"]["gnss_t_s"] < DURATION_S - 5.0))
+    assert f.counts["imu_gaps"] > 100 and f.counts["gnss_deferred"] > 50, f.counts  # the holes were there
+    assert f.rejected.get("gnss_pos", 0) + f.rejected.get("gnss_vel", 0) <= 0.01 * fixes, f.rejected
+    assert "gnss_lockout_reinitialised" not in f.counts and "gnss_position_reset" not in f.counts, f.counts
+    assert np.mean(m2 <= 9.21) >= 0.95  # the 2-D χ² 99 % bound on the filter's own σ
+    assert np.median(e) <= 1.25 * np.median(e_ref), (np.median(e), np.median(e_ref))
+
+
+def test_a_short_imu_hole_in_a_turn_is_bridged_turning(world: dict[str, Any]) -> None:
+    """A 0.4 s hole where the aircraft yaws fastest: bridged on the rates either side, the heading after it is
+    within a quarter of what coasting level (ω = 0) would have missed, |ω_z|·0.4 s."""
+    from vdm_aero.rotation import euler_from_quat, quat_multiply
+
+    tt, w_b = world["truth"]["t_s"], world["truth"]["omega_b_rad_s"]
+    window = (tt > 60.0) & (tt < DURATION_S - 20.0)
+    k = int(np.argmax(np.where(window, np.abs(w_b[:, 2]), 0.0)))
+    t0, hole_s = float(tt[k]) - 0.2, 0.4
+    s = dict(world["sensors"])
+    keep = (s["imu_t_s"] < t0) | (s["imu_t_s"] >= t0 + hole_s)
+    for key in ("imu_t_s", "imu_gyro_b_rad_s", "imu_accel_b_m_s2", "imu_temperature_c"):
+        s[key] = s[key][keep]
+    r = _runner(world, ("airspeed-dr",), s)
+    r.run_until(t0 + hole_s + 0.05)
+    f = r.filters["airspeed-dr"]
+    assert f.x is not None and f.counts["imu_gaps"] == 1
+    q_true = world["truth"]["q_nb"][int(np.searchsorted(tt, f.t_s))]
+    err = quat_multiply(f.x.q_nb * np.array([1.0, -1.0, -1.0, -1.0]), q_true)
+    heading_err = abs(float(euler_from_quat(err)[2]))
+    missed_by_coasting = abs(float(w_b[k, 2])) * hole_s
+    assert missed_by_coasting > 0.05  # a real turn: 3° or more
+    assert heading_err < 0.25 * missed_by_coasting, (heading_err, missed_by_coasting)

@@ -91,10 +91,18 @@ NIS_WINDOW: Final = 1000
 PORT_STALE_S: Final = 0.5  # no port frame this long: fallback, as for frames without air data
 GAP_COAST_MAX_S: Final = 2.0  # a longer IMU gap with GNSS at hand re-initialises the pose at the next fix
 GAP_STEP_S: Final = 0.1  # coasting step through an IMU gap
+GAP_INTERPOLATE_MAX_S: Final = 0.5  # a shorter gap is bridged on the rates either side of it, a longer one coasts
 GAP_MAX_STEPS: Final = 600  # longer gaps coast in longer steps (the state is a guess by then anyway)
 GAP_ACCEL_SIGMA_M_S2: Final = 1.0  # unknown manoeuvre acceleration during a gap (1σ, white) [m/s²/√s]
 GAP_RATE_SIGMA_RAD_S: Final = 0.05  # unknown turn-rate change during a gap [rad/s/√s]
+# coasting level through a longer gap misses a whole manoeuvre: a survey turn at 20 m/s and 30° of bank is
+# g·tan 30° = 5.7 m/s² and 0.28 rad/s, rolled into at up to 1 rad/s; half of each is the 1σ of a manoeuvre held
+# through the gap (a ramp in velocity and attitude, not a random walk: a turn does not average out)
+COAST_ACCEL_SIGMA_M_S2: Final = 3.0
+COAST_RATE_SIGMA_RAD_S: Final = 0.3
 BUFFER_S: Final = 1.0
+_GnssArgs = tuple[float, float, F64Array, F64Array, float, float]  # NavFilter.gnss's, in order
+PENDING_GNSS_MAX: Final = 20  # fixes waiting for the IMU (gnss): 2 s of a 10 Hz receiver, a gap that still coasts
 
 
 @dataclass(frozen=True)
@@ -392,6 +400,8 @@ class NavFilter:
         self.t_s = math.nan
         self.inputs = _Inputs()
         self._buffer: deque[tuple[float, F64Array, F64Array]] = deque(maxlen=round(BUFFER_S * config.filter_rate_hz))
+        # GNSS fixes valid after the last IMU step, waiting for the IMU to reach them (gnss); their arguments
+        self._pending_gnss: deque[_GnssArgs] = deque(maxlen=PENDING_GNSS_MAX)
         self._last_gnss_s = -math.inf
         self._pos_rejected_since: float | None = None
         self._all_rejected_since: float | None = None
@@ -438,6 +448,7 @@ class NavFilter:
         out.engine = copy.deepcopy(self.engine, memo)
         out.inputs = copy.deepcopy(self.inputs, memo)
         out._buffer = copy.deepcopy(self._buffer, memo)
+        out._pending_gnss = copy.deepcopy(self._pending_gnss, memo)
         out._next_aid, out._last_rejected_s = dict(self._next_aid), dict(self._last_rejected_s)
         out.counts, out.rejected = dict(self.counts), dict(self.rejected)
         out.nis = {k: deque(v, maxlen=NIS_WINDOW) for k, v in self.nis.items()}
@@ -548,7 +559,7 @@ class NavFilter:
             if gap > GAP_COAST_MAX_S and not self.in_outage:
                 self._drop_pose(gap)  # GNSS will give a better pose than a long coast: start again from it
             else:
-                self._bridge(gap)
+                self._bridge(gap, inc)
         self.inputs.omega_b = inc.dtheta_b / inc.dt_s
         self.inputs.f_b = inc.dvel_b / inc.dt_s
         if temperature_c is not None:
@@ -575,6 +586,8 @@ class NavFilter:
         if not self.in_outage and t_s - self._last_airdata_s < 1.0 and t_s - self._t_init_s > TURBULENCE_AFTER_S:
             p = np.diag(self.engine.P)[IDX["gust"]]
             self.process.set_gust_sigma(self.turbulence.observe(x.gust_ned, p, inc.dt_s))
+        while self._pending_gnss and self._pending_gnss[0][0] <= self.t_s + 0.5 / self.config.filter_rate_hz:
+            self.gnss(*self._pending_gnss.popleft())
 
     def _drop_pose(self, gap_s: float, *, count: bool = True) -> None:
         """An IMU gap longer than GAP_COAST_MAX_S with GNSS at hand: forget the pose (it would be a guess),
@@ -582,6 +595,7 @@ class NavFilter:
         self._carried = self.slow_states()
         self.x, self.engine = None, None
         self._buffer.clear()
+        self._pending_gnss.clear()  # the next fix initialises the pose; those before it are older
         if count:
             self.counts["imu_gaps_reinitialised"] = self.counts.get("imu_gaps_reinitialised", 0) + 1
 
@@ -652,32 +666,62 @@ class NavFilter:
         self.engine.P = p
         return restored
 
-    def _bridge(self, gap_s: float) -> None:
-        """No IMU data for ``gap_s`` (a link drop-out, an autopilot stall): coast through it at constant
-        velocity and attitude (holding the last sample's rates would turn a momentary roll rate into a
-        roll-over), and add what that cannot know — the manoeuvres flown meanwhile
-        (:data:`GAP_ACCEL_SIGMA_M_S2`, :data:`GAP_RATE_SIGMA_RAD_S`, white over the gap) — so the first
-        fix after it is judged against an honest uncertainty, not gated away."""
+    def _bridge(self, gap_s: float, after: ImuIncrement) -> None:
+        """No IMU data for ``gap_s`` (a link drop-out, an autopilot stall) before the increment ``after``.
+
+        * **A short gap** (≤ :data:`GAP_INTERPOLATE_MAX_S`: a lossy link's burst, a router's stall) is bridged
+          on rates and specific force interpolated linearly from the last increment before it to ``after``, in
+          filter steps: a turn goes on turning through it. Coasting level instead reads a 0.2 s hole in a 30°
+          banked turn as 0.06 rad of heading and 1.1 m/s of velocity that never happened, several σ of the
+          white gap noise, so fixes after it are gated out and the error lands in the wind and the biases. The
+          states inside the gap join the delayed-fix buffer, so a fix valid in the gap is fused, not stale.
+        * **A longer gap** coasts at constant velocity and attitude (holding or interpolating rates over
+          seconds would turn a momentary roll rate into a roll-over), and the buffer starts again after it.
+
+        The covariance takes what the bridge cannot know, so the first fix after it is judged against an honest
+        uncertainty, not gated away: the manoeuvres flown meanwhile, white over the gap
+        (:data:`GAP_ACCEL_SIGMA_M_S2`, :data:`GAP_RATE_SIGMA_RAD_S`), and, coasting, a whole manoeuvre missed
+        (:data:`COAST_ACCEL_SIGMA_M_S2`, :data:`COAST_RATE_SIGMA_RAD_S`, a ramp over the gap)."""
         assert self.x is not None and self.engine is not None
-        n = min(max(math.ceil(gap_s / GAP_STEP_S), 1), GAP_MAX_STEPS)
-        dt = gap_s / n
-        f_level_b = dcm_from_quat(self.x.q_nb).T @ np.array([0.0, 0.0, -G0_M_S2]) + self.x.b_accel_b
-        held = ImuIncrement(self.x.b_gyro_b * dt, f_level_b * dt, dt)  # bias-corrected: ω = 0, f = −g
-        for _ in range(n):
-            self.engine.predict(self.process.transition(self.x, held), self.process.noise(self.x, held))
-            self.process.propagate_inplace(self.x, held)
+        if gap_s <= GAP_INTERPOLATE_MAX_S:
+            n = max(math.ceil(gap_s / after.dt_s - 1e-9), 1)
+            dt = gap_s / n
+            w0, f0 = self.inputs.omega_b.copy(), self.inputs.f_b.copy()
+            w1, f1 = after.dtheta_b / after.dt_s, after.dvel_b / after.dt_s
+            for k in range(n):
+                s = (k + 0.5) / n  # the midpoint of the sub-step on the line from before to after the gap
+                step = ImuIncrement((w0 + s * (w1 - w0)) * dt, (f0 + s * (f1 - f0)) * dt, dt)
+                self.engine.predict(self.process.transition(self.x, step), self.process.noise(self.x, step))
+                self.process.propagate_inplace(self.x, step)
+                self._buffer.append((self.t_s + (k + 1) * dt, self.x.p_ned.copy(), self.x.v_ned.copy()))
+        else:
+            n = min(max(math.ceil(gap_s / GAP_STEP_S), 1), GAP_MAX_STEPS)
+            dt = gap_s / n
+            f_level_b = dcm_from_quat(self.x.q_nb).T @ np.array([0.0, 0.0, -G0_M_S2]) + self.x.b_accel_b
+            held = ImuIncrement(self.x.b_gyro_b * dt, f_level_b * dt, dt)  # bias-corrected: ω = 0, f = −g
+            for _ in range(n):
+                self.engine.predict(self.process.transition(self.x, held), self.process.noise(self.x, held))
+                self.process.propagate_inplace(self.x, held)
+            self._buffer.clear()  # the delayed-fix buffer holds no coasted guess
         p = self.engine.P
         sa, sw = GAP_ACCEL_SIGMA_M_S2, GAP_RATE_SIGMA_RAD_S
-        for i in range(3):  # a random walk in velocity over the gap, integrated into position
+        ca, cw = (COAST_ACCEL_SIGMA_M_S2, COAST_RATE_SIGMA_RAD_S) if gap_s > GAP_INTERPOLATE_MAX_S else (0.0, 0.0)
+        for i in range(3):
             iv, ip, ia = IDX["v"].start + i, IDX["p"].start + i, IDX["theta"].start + i
+            # a random walk in velocity over the gap, integrated into position (what interpolation misses) ...
             p[iv, iv] += sa**2 * gap_s
             p[ip, ip] += sa**2 * gap_s**3 / 3.0
             p[ip, iv] += sa**2 * gap_s**2 / 2.0
             p[iv, ip] += sa**2 * gap_s**2 / 2.0
             p[ia, ia] += sw**2 * gap_s
+            # ... and, coasting, a manoeuvre held through the whole gap: a ramp in velocity and attitude
+            p[iv, iv] += (ca * gap_s) ** 2
+            p[ip, ip] += (ca * gap_s**2 / 2.0) ** 2
+            p[ip, iv] += ca**2 * gap_s**3 / 2.0
+            p[iv, ip] += ca**2 * gap_s**3 / 2.0
+            p[ia, ia] += (cw * gap_s) ** 2
         self.engine.P = p
         self.t_s += gap_s
-        self._buffer.clear()  # the delayed-fix buffer holds no state from inside the gap
         self.counts["imu_gaps"] = self.counts.get("imu_gaps", 0) + 1
 
     def _model_aiding(self, t_s: float) -> None:
@@ -753,6 +797,14 @@ class NavFilter:
         a NaN vertical velocity fuses the horizontal velocity only), with the receiver's own horizontal and
         vertical accuracy estimates [m] where it reports them (NaN: unknown)."""
         if self.x is None:
+            return
+        if t_valid_s > self.t_s + 0.5 / self.config.filter_rate_hz:
+            # valid after the last IMU step: the IMU stream has a hole this fix arrived in (a lossy link, a
+            # stalled router). Fused now it would be judged against a state the hole's length old (20 m/s ×
+            # 0.3 s = 6 m) and gated out; it waits until the IMU, or the gap's bridge, reaches its time (imu)
+            self._pending_gnss.append((t_valid_s, t_s, np.array(p_ned, float), np.array(v_ned, float), h_acc_m,
+                                       v_acc_m))  # fmt: skip
+            self.counts["gnss_deferred"] = self.counts.get("gnss_deferred", 0) + 1
             return
         self._gnss_accuracy(h_acc_m, v_acc_m)
         if self._buffer and t_valid_s < self._buffer[0][0] - 0.5 / self.config.filter_rate_hz:
