@@ -99,6 +99,26 @@ def test_water_in_the_pitot_line_is_intermittent_and_erratic() -> None:
     assert np.all(out >= 0.0) and np.all(out <= 1.5 * 220.0)
 
 
+def test_a_lossy_link_loses_bursts_of_every_stream_alike_from_the_outage_start() -> None:
+    t_imu, t_gnss = np.arange(0.0, 100.0, 0.0025), np.arange(0.0, 100.0, 0.2)  # 400 Hz, 5 Hz
+    sensors = {"imu_t_s": t_imu, "imu_gyro_b_rad_s": np.tile(t_imu[:, None], (1, 3)),
+               "imu_temperature_c": t_imu.copy(), "gnss_t_s": t_gnss, "gnss_lat_deg": t_gnss.copy()}  # fmt: skip
+    out = _apply_fault(sensors, "link-bursts", 40.0, np.random.default_rng(6))
+    ti = out["imu_t_s"]
+    np.testing.assert_array_equal(ti[ti < 40.0], t_imu[t_imu < 40.0])  # nothing lost before the start
+    np.testing.assert_array_equal(out["imu_gyro_b_rad_s"][:, 0], ti)  # every array of a stream loses the same rows
+    np.testing.assert_array_equal(out["imu_temperature_c"], ti)
+    np.testing.assert_array_equal(out["gnss_lat_deg"], out["gnss_t_s"])
+    kept = len(ti[ti >= 40.0]) / np.sum(t_imu >= 40.0)
+    assert 0.2 < kept < 0.99  # bursts, not the whole stream
+    holes = np.diff(ti[ti >= 40.0])
+    assert np.sum(holes >= 0.1) >= 5  # holes a filter step cannot hide
+    assert np.sum(holes > 0.003) <= 3.0 * 60.0 * 1.5  # and no more of them than the sourced 1–3 a second allow
+    # the link's bursts, not each sensor's: a GNSS sample is lost only inside an IMU hole
+    lost_gnss = np.setdiff1d(t_gnss, out["gnss_t_s"])
+    assert len(lost_gnss) and all(np.sum((ti > g - 0.0025) & (ti < g + 0.0025)) == 0 for g in lost_gnss)
+
+
 def test_a_scenarios_place_in_the_table_keeps_its_draws() -> None:
     # a scenario's index seeds its flight's and its fault's draws: a new scenario inserted before an old one
     # would fly that one's seeds with other winds and faults, and its published figures would no longer repeat
@@ -108,6 +128,7 @@ def test_a_scenarios_place_in_the_table_keeps_its_draws() -> None:
     ]  # fmt: skip
     assert nav_bench._draws_of("ports-blocked") == "survey"  # the fault flies the survey's flights
     assert nav_bench._draws_of("payload-release") == "survey"  # and so does the release, until it drops
+    assert nav_bench._draws_of("link-bursts") == "survey"  # and the lossy link
 
 
 def test_the_payload_is_released_at_the_outage_start_of_the_surveys_flight(

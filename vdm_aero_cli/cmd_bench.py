@@ -40,7 +40,7 @@ def register(sub: Any) -> None:
     n = p.add_argument_group("nav-drift")
     n.add_argument("--scenario", default="survey", help="comma-separated: survey, wind-shear, loiter, no-airspeed, "
                    "pitot-blocked, pitot-icing, pitot-water, ports-blocked, manoeuvring, survey-calm, "
-                   "rtl-wind-gradient, payload-release, or all")  # fmt: skip
+                   "rtl-wind-gradient, payload-release, link-bursts, or all")  # fmt: skip
     n.add_argument("--world", choices=("harsh", "kind"), default="harsh",
                    help="harsh (default): every sourced sensor, Earth and fleet effect, reported beside the kind "
                    "world in one run, with the cost-per-effect table; kind: the earlier, ideal world "

@@ -14,7 +14,8 @@ Scenarios: ``survey``, ``wind-shear`` (the wind turns by 60° and strengthens by
 ``pitot-icing``: a growing under-read; ``pitot-water``: water in the line, intermittent and erratic),
 ``ports-blocked`` (one to three ports' lines blocked at the outage start: each holds the air it trapped),
 ``payload-release`` (the airframe's payload dropped at the outage start: the force model calibrated with it on
-board no longer fits),
+board no longer fits), ``link-bursts`` (from the outage start the link to the companion loses bursts of every
+stream, as a router or MAVProxy short of CPU does; the IMU's holes are the filter's to bridge),
 ``manoeuvring`` (45° banks, slow flight at high α, doublets), ``rtl-wind-gradient`` (out at 300 m, home at
 120 m and up again, through a power-law wind profile with veer) and ``survey-calm``, the survey's draws in
 still air, so that the difference to ``survey`` is what turbulence costs.
@@ -68,6 +69,7 @@ SCENARIOS: Final = {
     # last: a scenario's place in this table seeds its draws, so a new one is appended
     "ports-blocked": ("nav-survey", (8.0, 10.0), ("light", "moderate"), "ports-blocked"),
     "payload-release": ("nav-survey", (8.0, 10.0), ("light", "moderate"), "payload"),
+    "link-bursts": ("nav-survey", (8.0, 10.0), ("light", "moderate"), "link-bursts"),
 }
 _WIND_MODS: Final = ("shear", "gradient")  # flights whose wind changes: their own draws
 _FLIGHT_MODS: Final = (*_WIND_MODS, "payload")  # "faults" that change the flight itself, not the sensor stream
@@ -90,6 +92,13 @@ ICING_GROWTH_S: Final = (10.0, 60.0)
 BLOCKED_DRAIN_TAU_S: Final = (2.0, 10.0)
 WATER_EPISODES_PER_S: Final = (0.1, 0.3)
 WATER_EPISODE_S: Final = (0.5, 3.0)
+# a lossy link to the companion: bursts of frames lost, every stream alike (a burst is the link's, not a sensor's).
+# Measured (docs/navigation.md, "A lossy link"): MAVProxy 1.8.75 forwarding the mock autopilot at 4x real time on a
+# busy 2-core machine delivered 39 % of RAW_IMU, with 106-177 holes of 0.1 s or more in 70 s of flight (1.5-2.5 a
+# second), the longest 1.5 s. Holes start as a Poisson process of rate LINK_HOLES_PER_S, their lengths exponential
+# with a mean drawn from LINK_HOLE_MEAN_S
+LINK_HOLES_PER_S: Final = (1.0, 3.0)
+LINK_HOLE_MEAN_S: Final = (0.05, 0.3)
 # a port group's lines blocked at the orifice (ice, water, an insect): each line holds the air it trapped, which
 # leaks through the tubing's joints into the fuselage, at about the static pressure of the transducers' reference
 # side; the reading starts at the blocking moment's Δp, decays towards zero and, in a climb or descent, follows
@@ -254,6 +263,8 @@ def _apply_fault(sensors: dict[str, F64Array], fault: str | None, t_out: float,
     if fault == "no-airspeed":
         s["pitot_t_s"], s["pitot_dp_pa"], s["pitot_temperature_c"] = np.zeros(0), np.zeros(0), np.zeros(0)
         return s
+    if fault == "link-bursts":
+        return _link_bursts(s, t_out, rng if rng is not None else np.random.default_rng(0))
     if fault not in ("pitot-blocked", "pitot-icing", "pitot-water"):
         return s
     rng = rng if rng is not None else np.random.default_rng(0)
@@ -277,6 +288,26 @@ def _apply_fault(sensors: dict[str, F64Array], fault: str | None, t_out: float,
         idx = np.flatnonzero(after)[sel]
         dp[idx] *= rng.uniform(0.0, 1.5, len(idx))
     s["pitot_dp_pa"] = dp
+    return s
+
+
+def _link_bursts(s: dict[str, F64Array], t_out: float, rng: np.random.Generator) -> dict[str, F64Array]:
+    """Bursts of every stream's samples lost from ``t_out`` on (:data:`LINK_HOLES_PER_S`'s comment): each stream
+    ``<name>_t_s`` loses its samples inside the holes, with every array of the same prefix and length."""
+    t_end = max((float(v[-1]) for k, v in s.items() if k.endswith("_t_s") and len(v)), default=t_out)
+    rate, mean = rng.uniform(*LINK_HOLES_PER_S), rng.uniform(*LINK_HOLE_MEAN_S)
+    starts = t_out + np.cumsum(rng.exponential(1.0 / rate, max(int(2 * rate * (t_end - t_out)) + 5, 5)))
+    starts = starts[starts < t_end]
+    ends = starts + rng.exponential(mean, len(starts))
+    for key in [k for k in s if k.endswith("_t_s")]:
+        t = s[key]
+        i = np.searchsorted(starts, t, side="right") - 1  # the last hole starting at or before each sample
+        lost = (i >= 0) & (t < ends[np.clip(i, 0, None)]) if len(starts) else np.zeros(len(t), dtype=bool)
+        if not lost.any():
+            continue
+        prefix = key[: -len("t_s")]
+        for k in [k for k in s if k.startswith(prefix) and len(s[k]) == len(t)]:
+            s[k] = s[k][~lost]
     return s
 
 
