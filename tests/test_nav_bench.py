@@ -119,6 +119,20 @@ def test_a_lossy_link_loses_bursts_of_every_stream_alike_from_the_outage_start()
     assert len(lost_gnss) and all(np.sum((ti > g - 0.0025) & (ti < g + 0.0025)) == 0 for g in lost_gnss)
 
 
+def test_a_long_link_hole_outlasts_a_short_one_starting_inside_it() -> None:
+    class Draws:  # holes at 1.0 s (0.5 s long) and 1.2 s (0.05 s long): their union is 1.0–1.5 s
+        def uniform(self, lo: float, hi: float) -> float:
+            return lo
+
+        def exponential(self, scale: float, size: int) -> np.ndarray:
+            gaps = np.array([1.0, 0.2, 1e3]) if size > 2 else np.array([0.5, 0.05])
+            return np.resize(gaps, size) if size > 2 else gaps[:size]
+
+    t = np.arange(0.0, 3.0, 0.1)
+    kept = _apply_fault({"imu_t_s": t.copy()}, "link-bursts", 0.0, Draws())["imu_t_s"]  # type: ignore[arg-type]
+    np.testing.assert_allclose(np.setdiff1d(t, kept), t[(t >= 1.0 - 1e-9) & (t < 1.5 - 1e-9)])
+
+
 def test_a_scenarios_place_in_the_table_keeps_its_draws() -> None:
     # a scenario's index seeds its flight's and its fault's draws: a new scenario inserted before an old one
     # would fly that one's seeds with other winds and faults, and its published figures would no longer repeat

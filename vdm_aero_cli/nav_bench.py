@@ -298,11 +298,13 @@ def _link_bursts(s: dict[str, F64Array], t_out: float, rng: np.random.Generator)
     rate, mean = rng.uniform(*LINK_HOLES_PER_S), rng.uniform(*LINK_HOLE_MEAN_S)
     starts = t_out + np.cumsum(rng.exponential(1.0 / rate, max(int(2 * rate * (t_end - t_out)) + 5, 5)))
     starts = starts[starts < t_end]
-    ends = starts + rng.exponential(mean, len(starts))
+    # a sample is lost when a hole started before it ends after it: against the latest end of the holes started
+    # so far (a long hole can outlast a short one that starts inside it)
+    reach = np.maximum.accumulate(starts + rng.exponential(mean, len(starts))) if len(starts) else starts
     for key in [k for k in s if k.endswith("_t_s")]:
         t = s[key]
         i = np.searchsorted(starts, t, side="right") - 1  # the last hole starting at or before each sample
-        lost = (i >= 0) & (t < ends[np.clip(i, 0, None)]) if len(starts) else np.zeros(len(t), dtype=bool)
+        lost = (i >= 0) & (t < reach[np.clip(i, 0, None)]) if len(starts) else np.zeros(len(t), dtype=bool)
         if not lost.any():
             continue
         prefix = key[: -len("t_s")]
