@@ -94,9 +94,9 @@ WATER_EPISODES_PER_S: Final = (0.1, 0.3)
 WATER_EPISODE_S: Final = (0.5, 3.0)
 # a lossy link to the companion: bursts of frames lost, every stream alike (a burst is the link's, not a sensor's).
 # Measured (docs/navigation.md, "A lossy link"): MAVProxy 1.8.75 forwarding the mock autopilot at 4x real time on a
-# busy 2-core machine delivered 39 % of RAW_IMU, with 106-177 holes of 0.1 s or more in 70 s of flight (1.5-2.5 a
-# second), the longest 1.5 s. Holes start as a Poisson process of rate LINK_HOLES_PER_S, their lengths exponential
-# with a mean drawn from LINK_HOLE_MEAN_S
+# busy 2-core machine delivered 39 % of RAW_IMU, with 88-177 holes of 0.1 s or more in 70 s of flight (1.3-2.5 a
+# second) and link silences of up to 1.0 s. Holes start as a Poisson process of rate LINK_HOLES_PER_S, their lengths
+# exponential with a mean drawn from LINK_HOLE_MEAN_S
 LINK_HOLES_PER_S: Final = (1.0, 3.0)
 LINK_HOLE_MEAN_S: Final = (0.05, 0.3)
 # a port group's lines blocked at the orifice (ice, water, an insect): each line holds the air it trapped, which
