@@ -143,3 +143,30 @@ def test_a_pitch_manoeuvre_calls_no_port_quiet_and_a_blocked_one_is_found_after_
     _, events = _run(t, _block(t, flow, 5, 315.0, rng))
     assert [(i, quiet) for _, i, quiet in events] == [(5, True)]
     assert 330.0 <= events[0][0] < 330.0 + 15.0
+
+
+def test_a_lossy_links_holes_call_no_port_quiet_and_a_blocked_one_is_still_found() -> None:
+    """The frames come in bursts (0.3 s delivered, 1 s lost: a lossy link). A change across a hole is one over
+    1.3 s, not 0.1 s: a port that breathes with the slow flow (q̄ swinging ±100 Pa over 10 s) changes ~100×
+    more over it, one in the propwash's buffeting (white, the same 0.1-s activity) no more. Taken as a 0.1-s
+    change, the buffeting port's share fell to ~1 % of its own and it was called quiet. Only the changes
+    inside a burst count now, so it is not; a line blocked in the same bursts still is, within 10 s of the
+    frames delivered."""
+    rng = np.random.default_rng(5)
+    t = np.arange(0.0, 320.0, 1.0 / RATE_HZ)
+    q = 200.0 + 100.0 * np.sin(2.0 * math.pi * t / 10.0)
+    cp = rng.uniform(0.4, 1.0, N)
+    dp = q[:, None] * cp + NOISE_PA * rng.standard_normal((len(t), N))
+    dp[:, 11] = 2.5 * rng.standard_normal(len(t))  # a port in the propwash: Cp ≈ 0, buffeted
+    alpha = ALPHA0_RAD + 1e-3 * rng.standard_normal(len(t))
+    _, events = _run(t, (dp, alpha))
+    assert events == []  # the same flow, every frame: no port is quiet
+    lossy = (t < 150.0) | (np.mod(t - 150.0, 1.3) < 0.3)
+    _, events = _run(t[lossy], (dp[lossy], alpha[lossy]))
+    assert events == [], events
+    blocked = dp.copy()
+    blocked[t >= 200.0, 3] = blocked[int(np.searchsorted(t, 200.0)), 3]  # the line holds the air it trapped
+    _, events = _run(t[lossy], (blocked[lossy], alpha[lossy]))
+    assert [(i, q) for _, i, q in events] == [(3, True)], events
+    # within 10 s of frames delivered (the activity is learnt from the bursts alone: 0.3 s of every 1.3)
+    assert events[0][0] - 200.0 < 10.0 * 1.3 / 0.3

@@ -95,10 +95,13 @@ WATER_EPISODE_S: Final = (0.5, 3.0)
 # a lossy link to the companion: bursts of frames lost, every stream alike (a burst is the link's, not a sensor's).
 # Measured (docs/navigation.md, "A lossy link"): MAVProxy 1.8.75 forwarding the mock autopilot at 4x real time on a
 # busy 2-core machine delivered 39 % of RAW_IMU, with 88-177 holes of 0.1 s or more in 70 s of flight (1.3-2.5 a
-# second) and link silences of up to 1.0 s. Holes start as a Poisson process of rate LINK_HOLES_PER_S, their lengths
-# exponential with a mean drawn from LINK_HOLE_MEAN_S
-LINK_HOLES_PER_S: Final = (1.0, 3.0)
+# second) and link silences of up to 1.0 s. The link is a Gilbert-Elliott channel (Gilbert 1960, Elliott 1963: the
+# standard model of bursty loss), a good state and a bad one taking turns, each held for an exponential time of a
+# mean drawn per flight: bad (a hole) LINK_HOLE_MEAN_S, good LINK_GOOD_MEAN_S. Means of 0.3 s lost and 0.2 s delivered
+# give the measurement (42 % delivered, 1.3-1.5 holes of 0.1 s or more a second, silences up to 1.4-1.8 s in 70 s);
+# the harshest draw, 0.3 and 0.15 s, keeps 35 %, the mildest, 0.05 and 1.0 s, 95 %
 LINK_HOLE_MEAN_S: Final = (0.05, 0.3)
+LINK_GOOD_MEAN_S: Final = (0.15, 1.0)
 # a port group's lines blocked at the orifice (ice, water, an insect): each line holds the air it trapped, which
 # leaks through the tubing's joints into the fuselage, at about the static pressure of the transducers' reference
 # side; the reading starts at the blocking moment's Δp, decays towards zero and, in a climb or descent, follows
@@ -291,20 +294,23 @@ def _apply_fault(sensors: dict[str, F64Array], fault: str | None, t_out: float,
     return s
 
 
-def _link_bursts(s: dict[str, F64Array], t_out: float, rng: np.random.Generator) -> dict[str, F64Array]:
-    """Bursts of every stream's samples lost from ``t_out`` on (:data:`LINK_HOLES_PER_S`'s comment): each stream
-    ``<name>_t_s`` loses its samples inside the holes, with every array of the same prefix and length."""
+def _link_bursts(s: dict[str, F64Array], t_out: float, rng: np.random.Generator,
+                 means_s: tuple[float, float] | None = None) -> dict[str, F64Array]:  # fmt: skip
+    """Bursts of every stream's samples lost from ``t_out`` on (:data:`LINK_HOLE_MEAN_S`'s comment): each stream
+    ``<name>_t_s`` loses its samples inside the holes, with every array of the same prefix and length.
+    ``means_s``: the channel's mean spells (lost, delivered) [s], instead of drawn."""
     t_end = max((float(v[-1]) for k, v in s.items() if k.endswith("_t_s") and len(v)), default=t_out)
-    rate, mean = rng.uniform(*LINK_HOLES_PER_S), rng.uniform(*LINK_HOLE_MEAN_S)
-    starts = t_out + np.cumsum(rng.exponential(1.0 / rate, max(int(2 * rate * (t_end - t_out)) + 5, 5)))
-    starts = starts[starts < t_end]
-    # a sample is lost when a hole started before it ends after it: against the latest end of the holes started
-    # so far (a long hole can outlast a short one that starts inside it)
-    reach = np.maximum.accumulate(starts + rng.exponential(mean, len(starts))) if len(starts) else starts
+    bad_s, good_s = means_s or (rng.uniform(*LINK_HOLE_MEAN_S), rng.uniform(*LINK_GOOD_MEAN_S))
+    # the channel starts good at t_out; enough turns to pass t_end with room (a sum of n exponentials of mean m
+    # falls short of n·m/2 with a negligible probability for n of tens or more)
+    n = 2 * int((t_end - t_out) / (bad_s + good_s)) + 20
+    good, bad = rng.exponential(good_s, n), rng.exponential(bad_s, n)
+    starts = t_out + np.cumsum(good + bad) - bad  # each hole begins after the good spell before it
+    ends = starts + bad
     for key in [k for k in s if k.endswith("_t_s")]:
         t = s[key]
         i = np.searchsorted(starts, t, side="right") - 1  # the last hole starting at or before each sample
-        lost = (i >= 0) & (t < reach[np.clip(i, 0, None)]) if len(starts) else np.zeros(len(t), dtype=bool)
+        lost = (i >= 0) & (t < ends[np.clip(i, 0, None)])
         if not lost.any():
             continue
         prefix = key[: -len("t_s")]

@@ -411,6 +411,8 @@ class WindChangeDetector:
     # raw per sample: INS velocity change N, E, its integral N, E, and the filter's position N, E and velocity N, E
     _pose: list[tuple[float, ...]] = field(default_factory=list)
     _last_t_s: float = -math.inf
+    # the IMU gaps the filter bridged in the last window: (t [s], the velocity variance the bridge added [m²/s²])
+    _gaps: list[tuple[float, float]] = field(default_factory=list)
     _anchor: tuple[float, tuple[float, ...], tuple[float, ...]] | None = None  # (t [s], pose, smoothed) at the start
 
     def ins_step(self, t_s: float, dv_n: float, dv_e: float, dt_s: float = 0.0) -> None:
@@ -454,6 +456,19 @@ class WindChangeDetector:
         d_air = (now[0] - old[0], now[1] - old[1])
         d_ins = (now[2] - old[2], now[3] - old[3])
         return math.hypot(d_ins[0] - d_air[0], d_ins[1] - d_air[1])
+
+    def gap(self, t_s: float, velocity_var_m2_s2: float) -> None:
+        """An IMU gap ending at ``t_s`` [s] that the filter bridged or coasted through, adding
+        ``velocity_var_m2_s2`` per axis to its velocity: the INS's velocity change over the window holds that
+        guess (:meth:`gap_sigma_m_s`)."""
+        self._gaps.append((t_s, velocity_var_m2_s2))
+        while self._gaps and self._gaps[0][0] < t_s - self.window_s:
+            del self._gaps[0]
+
+    def gap_sigma_m_s(self, t_s: float) -> float:
+        """The σ per axis [m/s] the gaps bridged in the window before ``t_s`` add to the INS's velocity change
+        there: a lossy link's holes in a turn read as a wind change unless the threshold carries them."""
+        return math.sqrt(sum(v for t, v in self._gaps if t >= t_s - self.window_s))
 
     def anchor(self, at_s: float | None = None) -> None:
         """Hold the pose at the window's start (before the change just seen), or at the sample nearest ``at_s``

@@ -34,6 +34,7 @@ from vdm_aero._typing import BoolArray, F64Array
 from vdm_aero.atmosphere import G0_M_S2, density_kg_m3, pressure_altitude_m
 from vdm_aero.nav.airdata_fdi import (
     PAIR_MAX_AGE_S,
+    WIND_CHANGE_GUST_SIGMAS,
     WIND_RELEARN_S,
     AirDataFdi,
     WindChangeDetector,
@@ -103,6 +104,10 @@ COAST_RATE_SIGMA_RAD_S: Final = 0.3
 BUFFER_S: Final = 1.0
 _GnssArgs = tuple[float, float, F64Array, F64Array, float, float]  # NavFilter.gnss's, in order
 PENDING_GNSS_MAX: Final = 20  # fixes waiting for the IMU (gnss): 2 s of a 10 Hz receiver, a gap that still coasts
+# an air-data measurement (a port frame, a pitot reading) valid more than this many IMU steps after the filter's
+# time arrived in a hole of the IMU stream: it waits for the IMU (ports, pitot). Within it, it is the usual lag of
+# a measurement behind the step the IMU has not finished yet
+AHEAD_OF_IMU_STEPS: Final = 1.5
 
 
 @dataclass(frozen=True)
@@ -402,6 +407,10 @@ class NavFilter:
         self._buffer: deque[tuple[float, F64Array, F64Array]] = deque(maxlen=round(BUFFER_S * config.filter_rate_hz))
         # GNSS fixes valid after the last IMU step, waiting for the IMU to reach them (gnss); their arguments
         self._pending_gnss: deque[_GnssArgs] = deque(maxlen=PENDING_GNSS_MAX)
+        # likewise the first port frame and pitot reading that came ahead of the IMU (_ahead_of_imu)
+        self._pending_ports: PortFrame | None = None
+        self._pending_pitot: tuple[float, float] | None = None
+        self._imu_dt_s = 0.0
         self._last_gnss_s = -math.inf
         self._pos_rejected_since: float | None = None
         self._all_rejected_since: float | None = None
@@ -562,6 +571,7 @@ class NavFilter:
                 self._bridge(gap, inc)
         self.inputs.omega_b = inc.dtheta_b / inc.dt_s
         self.inputs.f_b = inc.dvel_b / inc.dt_s
+        self._imu_dt_s = inc.dt_s
         if temperature_c is not None:
             self.inputs.temperature_k = temperature_c + 273.15
         if self.x is None or self.engine is None:
@@ -588,6 +598,19 @@ class NavFilter:
             self.process.set_gust_sigma(self.turbulence.observe(x.gust_ned, p, inc.dt_s))
         while self._pending_gnss and self._pending_gnss[0][0] <= self.t_s + 0.5 / self.config.filter_rate_hz:
             self.gnss(*self._pending_gnss.popleft())
+        if self._pending_ports is not None and not self._ahead_of_imu(self._pending_ports.t_s):
+            frame, self._pending_ports = self._pending_ports, None
+            self._fuse_ports(frame)
+        if self._pending_pitot is not None and not self._ahead_of_imu(self._pending_pitot[0]):
+            args, self._pending_pitot = self._pending_pitot, None
+            self._fuse_pitot(*args)
+
+    def _ahead_of_imu(self, t_s: float) -> bool:
+        """Whether a measurement at ``t_s`` [s] is ahead of the IMU by more than :data:`AHEAD_OF_IMU_STEPS`: it
+        arrived inside a hole of the IMU stream (a lossy link). Judged then, it would meet a state, rates and a
+        specific force the hole's length old: in a turn, metres per second of velocity that the air data would be
+        blamed for (a port or the force model excluded, a wind change seen)."""
+        return t_s - self.t_s > AHEAD_OF_IMU_STEPS * max(1.0 / self.config.filter_rate_hz, self._imu_dt_s)
 
     def _drop_pose(self, gap_s: float, *, count: bool = True) -> None:
         """An IMU gap longer than GAP_COAST_MAX_S with GNSS at hand: forget the pose (it would be a guess),
@@ -596,6 +619,7 @@ class NavFilter:
         self.x, self.engine = None, None
         self._buffer.clear()
         self._pending_gnss.clear()  # the next fix initialises the pose; those before it are older
+        self._pending_ports, self._pending_pitot = None, None
         if count:
             self.counts["imu_gaps_reinitialised"] = self.counts.get("imu_gaps_reinitialised", 0) + 1
 
@@ -666,6 +690,16 @@ class NavFilter:
         self.engine.P = p
         return restored
 
+    def _propagate_bridge(self, step: ImuIncrement, t_s: float) -> None:
+        """One step of a gap's bridge ending at ``t_s`` [s]; the wind-change detector's INS takes its velocity
+        change as it takes an IMU step's (without it, each hole of a lossy link in a turn reads as a wind change)."""
+        assert self.x is not None
+        v0 = self.x.v_ned.copy()
+        self.process.propagate_inplace(self.x, step)
+        if self.wind_change is not None:
+            dv = self.x.v_ned - v0
+            self.wind_change.ins_step(t_s, float(dv[0]), float(dv[1]), step.dt_s)
+
     def _bridge(self, gap_s: float, after: ImuIncrement) -> None:
         """No IMU data for ``gap_s`` (a link drop-out, an autopilot stall) before the increment ``after``.
 
@@ -692,7 +726,7 @@ class NavFilter:
                 s = (k + 0.5) / n  # the midpoint of the sub-step on the line from before to after the gap
                 step = ImuIncrement((w0 + s * (w1 - w0)) * dt, (f0 + s * (f1 - f0)) * dt, dt)
                 self.engine.predict(self.process.transition(self.x, step), self.process.noise(self.x, step))
-                self.process.propagate_inplace(self.x, step)
+                self._propagate_bridge(step, self.t_s + (k + 1) * dt)
                 self._buffer.append((self.t_s + (k + 1) * dt, self.x.p_ned.copy(), self.x.v_ned.copy()))
         else:
             n = min(max(math.ceil(gap_s / GAP_STEP_S), 1), GAP_MAX_STEPS)
@@ -720,6 +754,10 @@ class NavFilter:
             p[ip, iv] += ca**2 * gap_s**3 / 2.0
             p[iv, ip] += ca**2 * gap_s**3 / 2.0
             p[ia, ia] += (cw * gap_s) ** 2
+        if self.wind_change is not None:  # the INS's velocity change over the gap, and the heading the air data turn by
+            v_air = float(np.linalg.norm(self.x.v_ned - self.x.wind_ned))
+            var_theta = sw**2 * gap_s + (cw * gap_s) ** 2
+            self.wind_change.gap(self.t_s + gap_s, sa**2 * gap_s + (ca * gap_s) ** 2 + v_air**2 * var_theta)
         self.engine.P = p
         self.t_s += gap_s
         self.counts["imu_gaps"] = self.counts.get("imu_gaps", 0) + 1
@@ -975,7 +1013,14 @@ class NavFilter:
         """Pitot differential pressure [Pa] (fused by the pitot modes, and by port modes in fallback)."""
         if self.x is None or not (self.spec.pitot or self.fallback) or not math.isfinite(dp_pa):
             return
-        if not self._due("pitot", t_s):
+        if self._ahead_of_imu(t_s):
+            self._pending_pitot = self._pending_pitot or (t_s, dp_pa)
+            self.counts["airdata_ahead_of_imu"] = self.counts.get("airdata_ahead_of_imu", 0) + 1
+            return
+        self._fuse_pitot(t_s, dp_pa)
+
+    def _fuse_pitot(self, t_s: float, dp_pa: float) -> None:
+        if self.x is None or not self._due("pitot", t_s):
             return
         tas = math.sqrt(2.0 * max(dp_pa, 0.0) / self.inputs.rho_kg_m3)
         meas = Measurement(t_s, np.array([tas]), PitotAirspeed(self.config.pitot_sigma_m_s))
@@ -1011,6 +1056,14 @@ class NavFilter:
         if not self.uses_ports:
             return
         self.fallback = frame.airdata is None
+        if self.x is not None and self._ahead_of_imu(frame.t_s):
+            # the first such frame waits for the IMU (imu); later ones before it is fused are newer than it
+            self._pending_ports = self._pending_ports or frame
+            self.counts["airdata_ahead_of_imu"] = self.counts.get("airdata_ahead_of_imu", 0) + 1
+            return
+        self._fuse_ports(frame)
+
+    def _fuse_ports(self, frame: PortFrame) -> None:
         if self.x is None or frame.airdata is None or not self._due("ports", frame.t_s):
             return
         c = self.config
@@ -1070,7 +1123,8 @@ class NavFilter:
             self._settle_wind_change(frame.t_s)
         if change is None or not self.in_outage or frame.t_s < self._wind_live_until_s:
             return
-        if change <= wind_change_threshold_m_s(self.process.gust_sigma_m_s):
+        threshold = wind_change_threshold_m_s(self.process.gust_sigma_m_s)
+        if change <= threshold + WIND_CHANGE_GUST_SIGMAS * self.wind_change.gap_sigma_m_s(frame.t_s):
             return
         if self.fdi is not None and self.fdi.wind_changed(frame.t_s, change) is None:
             return

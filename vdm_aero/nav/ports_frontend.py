@@ -65,6 +65,7 @@ class QuietPorts:
     """
 
     CHANGE_S = 0.1
+    MAX_CHANGE_S = 0.15  # a change over more than this spans a hole in the frames (a lossy link): not taken
     ACTIVITY_TAU_S = 2.0
     SHARE_TAU_S = 60.0  # the share's learning (log-averaged), and the α activity's
     WARMUP_S = 60.0  # of active flow before any verdict
@@ -100,7 +101,9 @@ class QuietPorts:
         if prev is not None and len(prev) == len(dp_pa) and 0.0 <= t_s - t_prev < self.CHANGE_S:
             return  # the next change is taken CHANGE_S after this one's start
         self._prev, self._t_prev = dp_pa.copy(), t_s
-        if prev is None or len(prev) != len(dp_pa) or not t_s > t_prev:
+        if prev is None or len(prev) != len(dp_pa) or not 0.0 < t_s - t_prev <= self.MAX_CHANGE_S:
+            # a change across a hole in the frames is one over a longer time, larger the more the flow wandered
+            # in between, and differently so from port to port: not the activity the shares were learnt on
             self._alpha_prev = alpha_rad
             return
         dt = t_s - t_prev
