@@ -104,9 +104,9 @@ COAST_RATE_SIGMA_RAD_S: Final = 0.3
 BUFFER_S: Final = 1.0
 _GnssArgs = tuple[float, float, F64Array, F64Array, float, float]  # NavFilter.gnss's, in order
 PENDING_GNSS_MAX: Final = 20  # fixes waiting for the IMU (gnss): 2 s of a 10 Hz receiver, a gap that still coasts
-# an air-data measurement (a port frame, a pitot reading) valid more than this many IMU steps after the filter's
-# time arrived in a hole of the IMU stream: it waits for the IMU (ports, pitot). Within it, it is the usual lag of
-# a measurement behind the step the IMU has not finished yet
+# a measurement (a port frame, a pitot, compass, barometer or autopilot-attitude sample) valid more than this many
+# IMU steps after the filter's time arrived in a hole of the IMU stream: it waits for the IMU (_wait_for_imu).
+# Within it, it is the usual lag of a measurement behind the step the IMU has not finished yet
 AHEAD_OF_IMU_STEPS: Final = 1.5
 
 
@@ -407,10 +407,11 @@ class NavFilter:
         self._buffer: deque[tuple[float, F64Array, F64Array]] = deque(maxlen=round(BUFFER_S * config.filter_rate_hz))
         # GNSS fixes valid after the last IMU step, waiting for the IMU to reach them (gnss); their arguments
         self._pending_gnss: deque[_GnssArgs] = deque(maxlen=PENDING_GNSS_MAX)
-        # likewise the first port frame and pitot reading that came ahead of the IMU (_ahead_of_imu)
-        self._pending_ports: PortFrame | None = None
-        self._pending_pitot: tuple[float, float] | None = None
+        # likewise the first of each other kind of measurement that came ahead of the IMU (_wait_for_imu):
+        # kind → (t [s], the name of the method that fuses it, its arguments)
+        self._pending: dict[str, tuple[float, str, tuple[Any, ...]]] = {}
         self._imu_dt_s = 0.0
+        self._imu_resumed_s = -math.inf  # when the IMU last came back from a hole
         self._last_gnss_s = -math.inf
         self._pos_rejected_since: float | None = None
         self._all_rejected_since: float | None = None
@@ -458,6 +459,7 @@ class NavFilter:
         out.inputs = copy.deepcopy(self.inputs, memo)
         out._buffer = copy.deepcopy(self._buffer, memo)
         out._pending_gnss = copy.deepcopy(self._pending_gnss, memo)
+        out._pending = copy.deepcopy(self._pending, memo)
         out._next_aid, out._last_rejected_s = dict(self._next_aid), dict(self._last_rejected_s)
         out.counts, out.rejected = dict(self.counts), dict(self.rejected)
         out.nis = {k: deque(v, maxlen=NIS_WINDOW) for k, v in self.nis.items()}
@@ -565,6 +567,7 @@ class NavFilter:
         density, as :class:`~vdm_aero.nav.driver.NavDriver` picks it)."""
         gap = t_s - inc.dt_s - self.t_s
         if self.x is not None and gap > 2.0 * inc.dt_s:
+            self._imu_resumed_s = t_s
             if gap > GAP_COAST_MAX_S and not self.in_outage:
                 self._drop_pose(gap)  # GNSS will give a better pose than a long coast: start again from it
             else:
@@ -588,29 +591,41 @@ class NavFilter:
         self.engine.predict(phi, qd)
         self.t_s = t_s
         self._buffer.append((t_s, x.p_ned.copy(), x.v_ned.copy()))
-        if self.uses_ports and t_s - self._last_port_frame_s > PORT_STALE_S and not self.fallback:
-            # no port frames at all (a dead transducer board, a lost script): as bad as frames without air data
+        # no port frames at all (a dead transducer board, a lost script): as bad as frames without air data. Their
+        # silence counts from the IMU's return after a hole of its own: a link that lost both lost no ports
+        ports_silent_s = t_s - max(self._last_port_frame_s, self._imu_resumed_s)
+        if self.uses_ports and ports_silent_s > PORT_STALE_S and not self.fallback:
             self.fallback = True
             self.port_health = (0, self.port_health[1])
+            self.counts["ports_stale"] = self.counts.get("ports_stale", 0) + 1
         self._model_aiding(t_s)
         if not self.in_outage and t_s - self._last_airdata_s < 1.0 and t_s - self._t_init_s > TURBULENCE_AFTER_S:
             p = np.diag(self.engine.P)[IDX["gust"]]
             self.process.set_gust_sigma(self.turbulence.observe(x.gust_ned, p, inc.dt_s))
         while self._pending_gnss and self._pending_gnss[0][0] <= self.t_s + 0.5 / self.config.filter_rate_hz:
             self.gnss(*self._pending_gnss.popleft())
-        if self._pending_ports is not None and not self._ahead_of_imu(self._pending_ports.t_s):
-            frame, self._pending_ports = self._pending_ports, None
-            self._fuse_ports(frame)
-        if self._pending_pitot is not None and not self._ahead_of_imu(self._pending_pitot[0]):
-            args, self._pending_pitot = self._pending_pitot, None
-            self._fuse_pitot(*args)
+        for kind, (t_m, method, args) in list(self._pending.items()) if self._pending else ():
+            if not self._ahead_of_imu(t_m):
+                del self._pending[kind]
+                getattr(self, method)(*args)  # by name: a branch's copy calls its own method
 
     def _ahead_of_imu(self, t_s: float) -> bool:
-        """Whether a measurement at ``t_s`` [s] is ahead of the IMU by more than :data:`AHEAD_OF_IMU_STEPS`: it
-        arrived inside a hole of the IMU stream (a lossy link). Judged then, it would meet a state, rates and a
-        specific force the hole's length old: in a turn, metres per second of velocity that the air data would be
-        blamed for (a port or the force model excluded, a wind change seen)."""
         return t_s - self.t_s > AHEAD_OF_IMU_STEPS * max(1.0 / self.config.filter_rate_hz, self._imu_dt_s)
+
+    def _wait_for_imu(self, kind: str, t_s: float, method: str, *args: Any) -> bool:
+        """Whether a measurement of ``kind`` at ``t_s`` [s] is ahead of the IMU by more than
+        :data:`AHEAD_OF_IMU_STEPS`: it arrived in a hole of the IMU stream (a lossy link). Judged then, it would
+        meet a state, rates and a specific force the hole's length old: in a turn, metres per second of velocity
+        and a tenth of a radian of heading that the air data and the compass would be blamed for (a port or the
+        force model excluded, a wind change seen, the compass called biased). The first of its kind waits until
+        the IMU, or the hole's bridge, reaches it, and is then fused by ``method``; later ones are dropped
+        meanwhile (``<kind>_ahead_of_imu`` in the counts)."""
+        if not self._ahead_of_imu(t_s):
+            return False
+        self._pending.setdefault(kind, (t_s, method, args))
+        key = f"{kind}_ahead_of_imu"
+        self.counts[key] = self.counts.get(key, 0) + 1
+        return True
 
     def _drop_pose(self, gap_s: float, *, count: bool = True) -> None:
         """An IMU gap longer than GAP_COAST_MAX_S with GNSS at hand: forget the pose (it would be a guess),
@@ -619,7 +634,7 @@ class NavFilter:
         self.x, self.engine = None, None
         self._buffer.clear()
         self._pending_gnss.clear()  # the next fix initialises the pose; those before it are older
-        self._pending_ports, self._pending_pitot = None, None
+        self._pending.clear()
         if count:
             self.counts["imu_gaps_reinitialised"] = self.counts.get("imu_gaps_reinitialised", 0) + 1
 
@@ -945,6 +960,10 @@ class NavFilter:
         """Static pressure [Pa]: the altitude measurement and the air density (with the outside-air
         temperature of :meth:`imu`)."""
         self.inputs.rho_kg_m3 = float(density_kg_m3(pressure_pa, self.inputs.temperature_k))
+        if self.x is not None and not self._wait_for_imu("baro", t_s, "_fuse_baro", t_s, pressure_pa):
+            self._fuse_baro(t_s, pressure_pa)
+
+    def _fuse_baro(self, t_s: float, pressure_pa: float) -> None:
         if self.x is None or not self._due("baro", t_s):
             return
         z = np.array([float(pressure_altitude_m(pressure_pa))])
@@ -954,6 +973,10 @@ class NavFilter:
 
     def mag(self, t_s: float, field_b_ut: F64Array) -> None:
         """The body-frame magnetic field [µT], less the deviation learnt in flight when the mode learns it."""
+        if self.x is not None and not self._wait_for_imu("mag", t_s, "_fuse_mag", t_s, field_b_ut):
+            self._fuse_mag(t_s, field_b_ut)
+
+    def _fuse_mag(self, t_s: float, field_b_ut: F64Array) -> None:
         if self.x is None or not self._due("mag", t_s):
             return
         m_b = np.asarray(field_b_ut, float)
@@ -1000,6 +1023,10 @@ class NavFilter:
     def ap_attitude(self, t_s: float, q_nb: F64Array) -> None:
         """The autopilot's own attitude estimate (body FRD → NED quaternion), fused when the config asks for it
         (:attr:`NavConfig.ap_attitude_sigma_rad`: a log whose IMU is too slow to integrate)."""
+        if self.x is not None and not self._wait_for_imu("ap_attitude", t_s, "_fuse_ap_attitude", t_s, q_nb):
+            self._fuse_ap_attitude(t_s, q_nb)
+
+    def _fuse_ap_attitude(self, t_s: float, q_nb: F64Array) -> None:
         sigma = self.config.ap_attitude_sigma_rad
         if self.x is None or sigma is None or not self._due("ap_attitude", t_s):
             return
@@ -1013,11 +1040,8 @@ class NavFilter:
         """Pitot differential pressure [Pa] (fused by the pitot modes, and by port modes in fallback)."""
         if self.x is None or not (self.spec.pitot or self.fallback) or not math.isfinite(dp_pa):
             return
-        if self._ahead_of_imu(t_s):
-            self._pending_pitot = self._pending_pitot or (t_s, dp_pa)
-            self.counts["airdata_ahead_of_imu"] = self.counts.get("airdata_ahead_of_imu", 0) + 1
-            return
-        self._fuse_pitot(t_s, dp_pa)
+        if not self._wait_for_imu("pitot", t_s, "_fuse_pitot", t_s, dp_pa):
+            self._fuse_pitot(t_s, dp_pa)
 
     def _fuse_pitot(self, t_s: float, dp_pa: float) -> None:
         if self.x is None or not self._due("pitot", t_s):
@@ -1056,12 +1080,8 @@ class NavFilter:
         if not self.uses_ports:
             return
         self.fallback = frame.airdata is None
-        if self.x is not None and self._ahead_of_imu(frame.t_s):
-            # the first such frame waits for the IMU (imu); later ones before it is fused are newer than it
-            self._pending_ports = self._pending_ports or frame
-            self.counts["airdata_ahead_of_imu"] = self.counts.get("airdata_ahead_of_imu", 0) + 1
-            return
-        self._fuse_ports(frame)
+        if self.x is None or not self._wait_for_imu("ports", frame.t_s, "_fuse_ports", frame):
+            self._fuse_ports(frame)
 
     def _fuse_ports(self, frame: PortFrame) -> None:
         if self.x is None or frame.airdata is None or not self._due("ports", frame.t_s):
