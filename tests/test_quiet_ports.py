@@ -170,3 +170,7 @@ def test_a_lossy_links_holes_call_no_port_quiet_and_a_blocked_one_is_still_found
     assert [(i, q) for _, i, q in events] == [(3, True)], events
     # within 10 s of frames delivered (the activity is learnt from the bursts alone: 0.3 s of every 1.3)
     assert events[0][0] - 200.0 < 10.0 * 1.3 / 0.3
+    # a slow stream's every frame is no hole: at 5 Hz (a log's rate) the blocked line is found as well
+    slow = slice(None, None, round(RATE_HZ / 5.0))
+    _, events = _run(t[slow], (blocked[slow], alpha[slow]))
+    assert [(i, q) for _, i, q in events] == [(3, True)], events

@@ -30,6 +30,7 @@ import numpy as np
 from vdm_aero._typing import BoolArray, F64Array
 from vdm_aero.model import AeroModel
 from vdm_aero.nav.design_fit import PortPressureModel
+from vdm_aero.nav.imu_increments import TYPICAL_GAIN, gap_limit_s
 
 __all__ = ["PortFrame", "PortFrontEnd"]
 
@@ -65,7 +66,6 @@ class QuietPorts:
     """
 
     CHANGE_S = 0.1
-    MAX_CHANGE_S = 0.15  # a change over more than this spans a hole in the frames (a lossy link): not taken
     ACTIVITY_TAU_S = 2.0
     SHARE_TAU_S = 60.0  # the share's learning (log-averaged), and the α activity's
     WARMUP_S = 60.0  # of active flow before any verdict
@@ -85,6 +85,8 @@ class QuietPorts:
         self.quiet = np.zeros(n_ports, dtype=bool)
         self._prev: F64Array | None = None
         self._t_prev = math.nan
+        self._t_frame = math.nan  # the last frame's time, and the frames' typical interval (the IMU's gap rule)
+        self._frame_dt_s = math.nan
         self._activity = np.full(n_ports, math.nan)
         self._log_share = np.full((self.N_BANDS, n_ports), math.nan)  # per α band
         self._learnt_s = np.zeros((self.N_BANDS, n_ports))
@@ -97,13 +99,20 @@ class QuietPorts:
     def observe(self, t_s: float, dp_pa: F64Array, alpha_rad: float) -> None:
         """One frame at ``t_s`` [s] (NaN: a missing reading), with the latest air data's α [rad] (NaN: none,
         and no verdict)."""
+        dt_frame, self._t_frame = t_s - self._t_frame, t_s
+        if dt_frame > gap_limit_s(self._frame_dt_s):
+            # a hole in the frames (a lossy link): a change across it is one over a longer time, larger the more
+            # the flow wandered meanwhile, and differently so from port to port, not the activity the shares
+            # were learnt on. The next change starts after it
+            self._prev = None
+        elif dt_frame > 0.0:
+            fd = self._frame_dt_s
+            self._frame_dt_s = dt_frame if math.isnan(fd) else fd + TYPICAL_GAIN * (dt_frame - fd)
         prev, t_prev = self._prev, self._t_prev
         if prev is not None and len(prev) == len(dp_pa) and 0.0 <= t_s - t_prev < self.CHANGE_S:
             return  # the next change is taken CHANGE_S after this one's start
         self._prev, self._t_prev = dp_pa.copy(), t_s
-        if prev is None or len(prev) != len(dp_pa) or not 0.0 < t_s - t_prev <= self.MAX_CHANGE_S:
-            # a change across a hole in the frames is one over a longer time, larger the more the flow wandered
-            # in between, and differently so from port to port: not the activity the shares were learnt on
+        if prev is None or len(prev) != len(dp_pa) or not t_s > t_prev:
             self._alpha_prev = alpha_rad
             return
         dt = t_s - t_prev
