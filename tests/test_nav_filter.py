@@ -341,8 +341,10 @@ def test_a_lossy_links_imu_holes_are_bridged_and_its_fixes_still_fused(world: di
     the rates either side of a short hole and with the fixes that arrive inside one held until the IMU reaches
     them, the filter fuses its fixes, stays consistent and loses little. Coasting level through every hole and
     fusing those fixes against a state the hole's length old instead gated out a fifth of the fixes and locked
-    GNSS out on survey seed 3 (docs/navigation.md, "A lossy link")."""
+    GNSS out on survey seed 3 (docs/navigation.md, "A lossy link"). The bridge alone: without the autopilot's
+    ATTITUDE, whose rotation across each hole the next test measures."""
     holes = _imu_with_holes(world["sensors"], np.random.default_rng(7), holes_per_s=2.5, mean_hole_s=0.15)
+    holes["ap_att_t_s"], holes["ap_att_q_nb"] = np.zeros(0), np.zeros((0, 4))
     assert 0.55 < len(holes["imu_t_s"]) / len(world["sensors"]["imu_t_s"]) < 0.8
     e_ref, _ = _aided_errors(world, _runner(world, ("airspeed-dr",)), "airspeed-dr")
     r = _runner(world, ("airspeed-dr",), holes)
@@ -404,3 +406,41 @@ def test_a_short_imu_hole_in_a_turn_is_bridged_turning(world: dict[str, Any]) ->
     missed_by_coasting = abs(float(w_b[k, 2])) * hole_s
     assert missed_by_coasting > 0.05  # a real turn: 3° or more
     assert heading_err < 0.25 * missed_by_coasting, (heading_err, missed_by_coasting)
+
+
+def test_a_long_link_hole_in_a_turn_takes_its_rotation_from_the_autopilots_attitude(world: dict[str, Any]) -> None:
+    """Every stream lost for 1.2 s where the aircraft yaws fastest: too long to bridge on the rates either side,
+    the hole is coasted at ω = 0 and misses the turn flown meanwhile. The autopilot integrated its gyro through it
+    at full rate, so its ATTITUDE's change from the last message before the hole to the first after it (10 Hz,
+    with the error of :mod:`sim.flight.ap_attitude`) gives the rotation back: the heading after it must be within
+    a tenth of what the coast missed. Without the autopilot's attitude the same hole leaves more than half of it."""
+    from vdm_aero.rotation import euler_from_quat, quat_multiply
+
+    tt, w_b = world["truth"]["t_s"], world["truth"]["omega_b_rad_s"]
+    window = (tt > 60.0) & (tt < DURATION_S - 20.0)
+    k = int(np.argmax(np.where(window, np.abs(w_b[:, 2]), 0.0)))
+    t0, hole_s = float(tt[k]) - 0.6, 1.2
+    cut = dict(world["sensors"])
+    for key in [k for k in cut if k.endswith("_t_s")]:
+        keep = (cut[key] < t0) | (cut[key] >= t0 + hole_s)
+        prefix = key[: -len("t_s")]
+        for name in [n for n in cut if n.startswith(prefix) and len(cut[n]) == len(keep)]:
+            cut[name] = cut[name][keep]
+    no_ap = dict(cut, ap_att_t_s=np.zeros(0), ap_att_q_nb=np.zeros((0, 4)))
+
+    def heading_error(sensors: dict[str, np.ndarray]) -> tuple[float, dict[str, int]]:
+        r = _runner(world, ("airspeed-dr",), sensors)
+        r.run_until(t0 + hole_s + 0.25)  # the first ATTITUDE after the hole is in
+        f = r.filters["airspeed-dr"]
+        assert f.x is not None and f.counts["imu_gaps"] == 1, f.counts
+        q_true = world["truth"]["q_nb"][int(np.searchsorted(tt, f.t_s))]
+        err = quat_multiply(f.x.q_nb * np.array([1.0, -1.0, -1.0, -1.0]), q_true)
+        return abs(float(euler_from_quat(err)[2])), f.counts
+
+    missed_by_coasting = abs(float(np.mean(w_b[(tt >= t0) & (tt < t0 + hole_s), 2]))) * hole_s
+    assert missed_by_coasting > 0.15  # a real turn: 9° or more
+    with_ap, counts = heading_error(cut)
+    without, _ = heading_error(no_ap)
+    assert counts.get("ap_rotation") == 1, counts
+    assert without > 0.5 * missed_by_coasting, (without, missed_by_coasting)
+    assert with_ap < 0.1 * missed_by_coasting, (with_ap, without, missed_by_coasting)

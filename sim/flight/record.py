@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from sim.flight.ap_attitude import AP_ATTITUDE_RATE_HZ, AutopilotAttitude
 from sim.flight.scenario import Scenario
 from sim.flight.world import FlightWorld, Vehicle
 from vdm_aero.errors import ModelError, SpecError
@@ -56,6 +57,7 @@ def fly(
         )
     }  # fmt: skip
     every = max(n // 100, 1)
+    ap_att, next_att_s = AutopilotAttitude(), -np.inf
     for i in range(n):
         tick = world.step()
         if (imu := tick.imu) is not None:
@@ -63,6 +65,11 @@ def fly(
             rec["imu_accel_b_m_s2"].append(imu.accel_b_m_s2)
             rec["imu_gyro_b_rad_s"].append(imu.gyro_b_rad_s)
             rec["imu_temperature_c"].append(imu.temperature_c)
+            ap_att.step(imu, tick.truth)
+            if imu.t_s >= next_att_s:  # the autopilot's ATTITUDE, at the rate the service asks for it
+                next_att_s = imu.t_s + 1.0 / AP_ATTITUDE_RATE_HZ - 1e-9
+                rec["ap_att_t_s"].append(imu.t_s)
+                rec["ap_att_q_nb"].append(ap_att.q_nb(tick.truth))
         if (g := tick.gnss) is not None and g.fix_type >= 3:
             rec["gnss_t_s"].append(g.t_s)
             rec["gnss_lat_deg"].append(g.lat_deg)

@@ -34,6 +34,7 @@ from typing import TypedDict
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from sim.flight.ap_attitude import AutopilotAttitude
 from sim.flight.contract import BaroSample, ImuSample, World, WorldTick
 from sim.sitl.ekf2_judge import Ekf2Judge, Ekf2Rules
 from sim.sitl.ekf_judge import Ekf3GpsRules, GpsInputJudge
@@ -295,6 +296,7 @@ class MockAutopilot:
         self._drift = _DeadReckoning(d, judge, extnav)
         self._ekf2 = Ekf2Judge(self._options.ekf2_rules, judge)  # used only as PX4, into the same error state
         self._second = _SecondSensors(self._options.second_sensors)
+        self._ap_attitude = AutopilotAttitude()  # its own attitude estimate (ATTITUDE), from the world's IMU
         self._stop = threading.Event()
         self._lock = threading.Lock()
         self._gps_inputs: list[GpsInputRecord] = []
@@ -452,6 +454,7 @@ class MockAutopilot:
         st.imu = tick.imu or st.imu
         if tick.imu is not None:
             st.imu2 = self._second.imu(tick.imu)
+            self._ap_attitude.step(tick.imu, truth)
         # a fix lost is gone: after an outage GPS_RAW_INT waits for the receiver's next fix (ArduPilot's driver
         # does not report the last pre-outage fix again as if it were new)
         st.gnss = None if tick.gnss_outage else (tick.gnss or st.gnss)
@@ -492,7 +495,7 @@ class MockAutopilot:
             pos_ned_m=truth.pos_ned_m + err,
             v_ned_m_s=truth.v_ned_m_s + self._drift.estimate_error_rate_ned_m_s,
             error_ned_m=err.copy(),
-            q_nb=truth.q_nb,
+            q_nb=self._ap_attitude.q_nb(truth),
             omega_b_rad_s=truth.omega_b_rad_s,
             airspeed_m_s=truth.airspeed_m_s,
         )

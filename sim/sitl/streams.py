@@ -293,7 +293,8 @@ class NavEstimate:
     """The autopilot's own navigation solution (its EKF): truth, plus the dead-reckoning error in outages.
 
     What GLOBAL_POSITION_INT, LOCAL_POSITION_NED, ATTITUDE, ATTITUDE_QUATERNION and VFR_HUD report (the truth is
-    SIMSTATE's). The mock models no attitude or airspeed estimation error: those are the truth's."""
+    SIMSTATE's). The attitude carries the error of an autopilot integrating its gyro
+    (:mod:`sim.flight.ap_attitude`); the body rates and the airspeed estimate are the truth's."""
 
     lat_deg: float
     lon_deg: float

@@ -63,7 +63,7 @@ from vdm_aero.nav.measurements import (
 )
 from vdm_aero.nav.ports_frontend import PortFrame
 from vdm_aero.nav.state import AERO_PARAMS, AERO_PRIOR, AERO_SLOT, IDX, N_ERR, NavState
-from vdm_aero.rotation import dcm_from_quat, quat_from_euler
+from vdm_aero.rotation import dcm_from_quat, quat_exp, quat_from_euler, quat_log, quat_multiply
 from vdm_aero.vehicle import VehicleDescription
 
 __all__ = [
@@ -108,6 +108,16 @@ PENDING_GNSS_MAX: Final = 20  # fixes waiting for the IMU (gnss): 2 s of a 10 Hz
 # IMU steps after the filter's time arrived in a hole of the IMU stream: it waits for the IMU (_wait_for_imu).
 # Within it, it is the usual lag of a measurement behind the step the IMU has not finished yet
 AHEAD_OF_IMU_STEPS: Final = 1.5
+# The rotation over an IMU hole from the autopilot's ATTITUDE (_fuse_ap_rotation): the autopilot integrated its
+# gyro through the hole at full rate, so its attitude's change from the last message before the hole to the first
+# after it is the rotation the bridge can only guess. Its error over that span [rad, 1σ per axis]: the gyro offset
+# the autopilot has not yet learnt (the filter's own offset σ stands for it) over the span, the gyro's sensitivity
+# and cross-axis tolerances (±0.5 % and ±1.25 % in the parts' data sheets, TDK DS-000347 and Bosch
+# BST-BMI088-DS000) on the angle turned, and its aiding's corrections meanwhile (assumed: 2 mrad)
+AP_ROTATION_SCALE: Final = math.hypot(0.005, 0.0125)
+AP_ROTATION_FLOOR_RAD: Final = 0.002
+AP_ROTATION_WAIT_S: Final = 0.25  # the others wait this long for it: 2.5 periods of a 10 Hz ATTITUDE
+AP_ROTATION_MAX_S: Final = 5.0  # an anchor older than this is not used: the coast was long, the offset's share large
 
 
 @dataclass(frozen=True)
@@ -412,6 +422,11 @@ class NavFilter:
         self._pending: dict[str, tuple[float, str, tuple[Any, ...]]] = {}
         self._imu_dt_s = 0.0
         self._imu_resumed_s = -math.inf  # when the IMU last came back from a hole
+        # the last autopilot ATTITUDE and the filter's attitude then (t [s], q_ap, q̂), and the one before the IMU's
+        # last hole, kept until an ATTITUDE after the hole turns it across (_fuse_ap_rotation)
+        self._att_anchor: tuple[float, F64Array, F64Array] | None = None
+        self._att_hole: tuple[float, F64Array, F64Array] | None = None
+        self._hole_cov: F64Array | None = None  # the covariance the holes since then put in, propagated since
         self._last_gnss_s = -math.inf
         self._pos_rejected_since: float | None = None
         self._all_rejected_since: float | None = None
@@ -571,6 +586,8 @@ class NavFilter:
             if gap > GAP_COAST_MAX_S and not self.in_outage:
                 self._drop_pose(gap)  # GNSS will give a better pose than a long coast: start again from it
             else:
+                if self._att_hole is None:  # holes in a row: the anchor before the first of them
+                    self._att_hole = self._att_anchor
                 self._bridge(gap, inc)
         self.inputs.omega_b = inc.dtheta_b / inc.dt_s
         self.inputs.f_b = inc.dvel_b / inc.dt_s
@@ -588,7 +605,7 @@ class NavFilter:
         self.process.propagate_inplace(x, inc)
         if self.wind_change is not None and v0 is not None:
             self.wind_change.ins_step(t_s, float(x.v_ned[0] - v0[0]), float(x.v_ned[1] - v0[1]), inc.dt_s)
-        self.engine.predict(phi, qd)
+        self._predict(phi, qd)
         self.t_s = t_s
         self._buffer.append((t_s, x.p_ned.copy(), x.v_ned.copy()))
         # no port frames at all (a dead transducer board, a lost script): as bad as frames without air data. Their
@@ -598,19 +615,47 @@ class NavFilter:
             self.fallback = True
             self.port_health = (0, self.port_health[1])
             self.counts["ports_stale"] = self.counts.get("ports_stale", 0) + 1
-        self._model_aiding(t_s)
+        if not self._awaiting_rotation():  # its pseudo-measurements wait for the rotation as the others do
+            self._model_aiding(t_s)
         if not self.in_outage and t_s - self._last_airdata_s < 1.0 and t_s - self._t_init_s > TURBULENCE_AFTER_S:
             p = np.diag(self.engine.P)[IDX["gust"]]
             self.process.set_gust_sigma(self.turbulence.observe(x.gust_ned, p, inc.dt_s))
+        if self._att_hole is not None and not self._awaiting_rotation():
+            self._att_hole, self._hole_cov = None, None  # no ATTITUDE after the hole in time: the rest go on
+            self.counts["ap_rotation_missed"] = self.counts.get("ap_rotation_missed", 0) + 1
+        self._release_pending()
+
+    def _release_pending(self) -> None:
+        """Fuse what waited for the IMU (or for the autopilot's rotation across a hole) and may go now."""
+        if self._awaiting_rotation():
+            kept = self._pending.get("ap_attitude")  # only the ATTITUDE it waits for may go
+            if kept is not None and not self._ahead_of_imu(kept[0]):
+                del self._pending["ap_attitude"]
+                getattr(self, kept[1])(*kept[2])
+            return
         while self._pending_gnss and self._pending_gnss[0][0] <= self.t_s + 0.5 / self.config.filter_rate_hz:
             self.gnss(*self._pending_gnss.popleft())
-        for kind, (t_m, method, args) in list(self._pending.items()) if self._pending else ():
-            if not self._ahead_of_imu(t_m):
+        for kind in list(self._pending) if self._pending else ():
+            entry = self._pending.get(kind)  # a method called below may have released it already
+            if entry is not None and not self._ahead_of_imu(entry[0]):
                 del self._pending[kind]
-                getattr(self, method)(*args)  # by name: a branch's copy calls its own method
+                getattr(self, entry[1])(*entry[2])  # by name: a branch's copy calls its own method
+
+    def _predict(self, phi: F64Array, qd: F64Array) -> None:
+        assert self.engine is not None
+        self.engine.predict(phi, qd)
+        if self._hole_cov is not None:  # everything since the hole's start that the autopilot's rotation measures
+            self._hole_cov = phi @ self._hole_cov @ phi.T + qd
 
     def _ahead_of_imu(self, t_s: float) -> bool:
         return t_s - self.t_s > AHEAD_OF_IMU_STEPS * max(1.0 / self.config.filter_rate_hz, self._imu_dt_s)
+
+    def _awaiting_rotation(self) -> bool:
+        """After a hole of the IMU stream with the autopilot's ATTITUDE flowing, every other measurement waits
+        (:data:`AP_ROTATION_WAIT_S` at most) for the first ATTITUDE after it: the rotation it gives is an update
+        of the error the hole put in only while nothing else has been fused since (_fuse_ap_rotation)."""
+        return (self._att_hole is not None and self.config.ap_attitude_sigma_rad is None
+                and self.t_s - self._imu_resumed_s <= AP_ROTATION_WAIT_S)  # fmt: skip
 
     def _wait_for_imu(self, kind: str, t_s: float, method: str, *args: Any) -> bool:
         """Whether a measurement of ``kind`` at ``t_s`` [s] is ahead of the IMU by more than
@@ -620,7 +665,7 @@ class NavFilter:
         force model excluded, a wind change seen, the compass called biased). The first of its kind waits until
         the IMU, or the hole's bridge, reaches it, and is then fused by ``method``; later ones are dropped
         meanwhile (``<kind>_ahead_of_imu`` in the counts)."""
-        if not self._ahead_of_imu(t_s):
+        if not self._ahead_of_imu(t_s) and (kind == "ap_attitude" or not self._awaiting_rotation()):
             return False
         self._pending.setdefault(kind, (t_s, method, args))
         key = f"{kind}_ahead_of_imu"
@@ -635,6 +680,7 @@ class NavFilter:
         self._buffer.clear()
         self._pending_gnss.clear()  # the next fix initialises the pose; those before it are older
         self._pending.clear()
+        self._att_anchor = self._att_hole = self._hole_cov = None
         if count:
             self.counts["imu_gaps_reinitialised"] = self.counts.get("imu_gaps_reinitialised", 0) + 1
 
@@ -663,6 +709,7 @@ class NavFilter:
                 cov[j, :] = 0.0
                 cov[:, j] = 0.0
                 cov[j, j] = s**2
+        self._att_anchor = self._att_hole = self._hole_cov = None  # the autopilot's attitude starts again with it
         self.counts["imu_recalibrated"] = self.counts.get("imu_recalibrated", 0) + 1
 
     # ------------------------------------------------------------------------------- slow states
@@ -730,8 +777,27 @@ class NavFilter:
         The covariance takes what the bridge cannot know, so the first fix after it is judged against an honest
         uncertainty, not gated away: the manoeuvres flown meanwhile, white over the gap
         (:data:`GAP_ACCEL_SIGMA_M_S2`, :data:`GAP_RATE_SIGMA_RAD_S`), and, coasting, a whole manoeuvre missed
-        (:data:`COAST_ACCEL_SIGMA_M_S2`, :data:`COAST_RATE_SIGMA_RAD_S`, a ramp over the gap)."""
+        (:data:`COAST_ACCEL_SIGMA_M_S2`, :data:`COAST_RATE_SIGMA_RAD_S`, a ramp over the gap). Where the
+        autopilot's rotation across the hole will measure it (:meth:`_fuse_ap_rotation`), that noise goes into the
+        bridge's steps and is also kept apart; otherwise it is added at the gap's end."""
         assert self.x is not None and self.engine is not None
+        if self._att_hole is not None and self._hole_cov is None:  # what the hole puts in, apart (_fuse_ap_rotation)
+            self._hole_cov = np.zeros((N_ERR, N_ERR))
+        sa, sw = GAP_ACCEL_SIGMA_M_S2, GAP_RATE_SIGMA_RAD_S
+        ca, cw = (COAST_ACCEL_SIGMA_M_S2, COAST_RATE_SIGMA_RAD_S) if gap_s > GAP_INTERPOLATE_MAX_S else (0.0, 0.0)
+        # what the bridge cannot know, as noise in each of its steps, so that the attitude it leaves uncertain is
+        # correlated with the velocity it turned the specific force into: a random walk in velocity and attitude
+        # (what interpolation misses) and, coasting, a manoeuvre held through the gap, whose ramp's variance at the
+        # gap's end, (c·T)², a walk of intensity c²·T reaches too
+        q_gap = np.zeros(N_ERR)
+        q_gap[IDX["v"]] = sa**2 + ca**2 * gap_s
+        q_gap[IDX["theta"]] = sw**2 + cw**2 * gap_s
+        # Without a rotation to come, the noise goes in at the gap's end (the covariance of before: spread over
+        # the steps, its share in the velocity made the aided error of tests/test_nav_filter.py's lossy flight 10 %
+        # worse, with nothing to measure it by)
+        spread = self._hole_cov is not None
+        if not spread:
+            q_gap[:] = 0.0
         if gap_s <= GAP_INTERPOLATE_MAX_S:
             n = max(math.ceil(gap_s / after.dt_s - 1e-9), 1)
             dt = gap_s / n
@@ -740,7 +806,9 @@ class NavFilter:
             for k in range(n):
                 s = (k + 0.5) / n  # the midpoint of the sub-step on the line from before to after the gap
                 step = ImuIncrement((w0 + s * (w1 - w0)) * dt, (f0 + s * (f1 - f0)) * dt, dt)
-                self.engine.predict(self.process.transition(self.x, step), self.process.noise(self.x, step))
+                self._predict(
+                    self.process.transition(self.x, step), self.process.noise(self.x, step) + np.diag(q_gap * dt)
+                )
                 self._propagate_bridge(step, self.t_s + (k + 1) * dt)
                 self._buffer.append((self.t_s + (k + 1) * dt, self.x.p_ned.copy(), self.x.v_ned.copy()))
         else:
@@ -749,31 +817,30 @@ class NavFilter:
             f_level_b = dcm_from_quat(self.x.q_nb).T @ np.array([0.0, 0.0, -G0_M_S2]) + self.x.b_accel_b
             held = ImuIncrement(self.x.b_gyro_b * dt, f_level_b * dt, dt)  # bias-corrected: ω = 0, f = −g
             for _ in range(n):
-                self.engine.predict(self.process.transition(self.x, held), self.process.noise(self.x, held))
+                self._predict(
+                    self.process.transition(self.x, held), self.process.noise(self.x, held) + np.diag(q_gap * dt)
+                )
                 self.process.propagate_inplace(self.x, held)
             self._buffer.clear()  # the delayed-fix buffer holds no coasted guess
-        p = self.engine.P
-        sa, sw = GAP_ACCEL_SIGMA_M_S2, GAP_RATE_SIGMA_RAD_S
-        ca, cw = (COAST_ACCEL_SIGMA_M_S2, COAST_RATE_SIGMA_RAD_S) if gap_s > GAP_INTERPOLATE_MAX_S else (0.0, 0.0)
-        for i in range(3):
-            iv, ip, ia = IDX["v"].start + i, IDX["p"].start + i, IDX["theta"].start + i
-            # a random walk in velocity over the gap, integrated into position (what interpolation misses) ...
-            p[iv, iv] += sa**2 * gap_s
-            p[ip, ip] += sa**2 * gap_s**3 / 3.0
-            p[ip, iv] += sa**2 * gap_s**2 / 2.0
-            p[iv, ip] += sa**2 * gap_s**2 / 2.0
-            p[ia, ia] += sw**2 * gap_s
-            # ... and, coasting, a manoeuvre held through the whole gap: a ramp in velocity and attitude
-            p[iv, iv] += (ca * gap_s) ** 2
-            p[ip, ip] += (ca * gap_s**2 / 2.0) ** 2
-            p[ip, iv] += ca**2 * gap_s**3 / 2.0
-            p[iv, ip] += ca**2 * gap_s**3 / 2.0
-            p[ia, ia] += (cw * gap_s) ** 2
+        if not spread:
+            p = self.engine.P
+            for i in range(3):
+                iv, ip, ia = IDX["v"].start + i, IDX["p"].start + i, IDX["theta"].start + i
+                p[iv, iv] += sa**2 * gap_s
+                p[ip, ip] += sa**2 * gap_s**3 / 3.0
+                p[ip, iv] += sa**2 * gap_s**2 / 2.0
+                p[iv, ip] += sa**2 * gap_s**2 / 2.0
+                p[ia, ia] += sw**2 * gap_s
+                p[iv, iv] += (ca * gap_s) ** 2
+                p[ip, ip] += (ca * gap_s**2 / 2.0) ** 2
+                p[ip, iv] += ca**2 * gap_s**3 / 2.0
+                p[iv, ip] += ca**2 * gap_s**3 / 2.0
+                p[ia, ia] += (cw * gap_s) ** 2
+            self.engine.P = p
         if self.wind_change is not None:  # the INS's velocity change over the gap, and the heading the air data turn by
             v_air = float(np.linalg.norm(self.x.v_ned - self.x.wind_ned))
             var_theta = sw**2 * gap_s + (cw * gap_s) ** 2
             self.wind_change.gap(self.t_s + gap_s, sa**2 * gap_s + (ca * gap_s) ** 2 + v_air**2 * var_theta)
-        self.engine.P = p
         self.t_s += gap_s
         self.counts["imu_gaps"] = self.counts.get("imu_gaps", 0) + 1
 
@@ -825,6 +892,9 @@ class NavFilter:
         self.nis.setdefault(name, deque(maxlen=NIS_WINDOW)).append(res.nis)
         if res.accepted:
             self.x.plus_inplace(dx)
+            if self._att_anchor is not None and self._att_hole is None:  # the anchor takes what its state takes
+                t_a, q_ap_a, q_hat_a = self._att_anchor
+                self._att_anchor = (t_a, q_ap_a, quat_multiply(q_hat_a, quat_exp(dx[IDX["theta"]])))
             if state is not None:  # the buffered state takes the same correction: the next measurement of
                 state.plus_inplace(dx)  # the same fix (position after velocity) must not count it twice
             self.counts[name] = self.counts.get(name, 0) + 1
@@ -851,7 +921,7 @@ class NavFilter:
         vertical accuracy estimates [m] where it reports them (NaN: unknown)."""
         if self.x is None:
             return
-        if t_valid_s > self.t_s + 0.5 / self.config.filter_rate_hz:
+        if t_valid_s > self.t_s + 0.5 / self.config.filter_rate_hz or self._awaiting_rotation():
             # valid after the last IMU step: the IMU stream has a hole this fix arrived in (a lossy link, a
             # stalled router). Fused now it would be judged against a state the hole's length old (20 m/s ×
             # 0.3 s = 6 m) and gated out; it waits until the IMU, or the gap's bridge, reaches its time (imu)
@@ -1021,16 +1091,81 @@ class NavFilter:
         return check.biased
 
     def ap_attitude(self, t_s: float, q_nb: F64Array) -> None:
-        """The autopilot's own attitude estimate (body FRD → NED quaternion), fused when the config asks for it
-        (:attr:`NavConfig.ap_attitude_sigma_rad`: a log whose IMU is too slow to integrate)."""
+        """The autopilot's own attitude estimate (body FRD → NED quaternion): fused where the config asks for it
+        (:attr:`NavConfig.ap_attitude_sigma_rad`: a log whose IMU is too slow to integrate); otherwise its change
+        across a hole of the IMU stream gives the rotation the hole's bridge could only guess (_fuse_ap_rotation)."""
         if self.x is not None and not self._wait_for_imu("ap_attitude", t_s, "_fuse_ap_attitude", t_s, q_nb):
             self._fuse_ap_attitude(t_s, q_nb)
 
     def _fuse_ap_attitude(self, t_s: float, q_nb: F64Array) -> None:
-        sigma = self.config.ap_attitude_sigma_rad
-        if self.x is None or sigma is None or not self._due("ap_attitude", t_s):
+        if self.x is None or self.engine is None:
             return
-        self._fuse(Measurement(t_s, np.zeros(3), AutopilotAttitude(np.asarray(q_nb, float), np.asarray(sigma))))
+        sigma = self.config.ap_attitude_sigma_rad
+        q = np.asarray(q_nb, float)
+        if sigma is None:
+            # only an ATTITUDE of the filter's own time (not one that came in a hole of the IMU stream only and
+            # waited: the state has gone on since) is turned across a hole or held as the next anchor
+            if abs(t_s - self.t_s) <= AHEAD_OF_IMU_STEPS * max(1.0 / self.config.filter_rate_hz, self._imu_dt_s):
+                self._fuse_ap_rotation(t_s, q)
+                self._att_anchor = (t_s, q, self._attitude_at(t_s))
+                self._release_pending()
+            return
+        if self._due("ap_attitude", t_s):
+            self._fuse(Measurement(t_s, np.zeros(3), AutopilotAttitude(q, np.asarray(sigma))))
+
+    def _rate_b(self) -> F64Array:
+        """The body rate [rad/s] of the last IMU increment, less the gyro offset estimate."""
+        assert self.x is not None
+        return np.asarray(self.inputs.omega_b - self.x.b_gyro_b, dtype=np.float64)
+
+    def _attitude_at(self, t_s: float) -> F64Array:
+        """The state's attitude turned from the filter's time to ``t_s`` [s] (a step at most) at the last rate."""
+        assert self.x is not None
+        return quat_multiply(self.x.q_nb, quat_exp(self._rate_b() * (t_s - self.t_s)))
+
+    def _fuse_ap_rotation(self, t_s: float, q_b: F64Array) -> None:
+        """After a hole of the IMU stream: the filter's attitude at the last ATTITUDE before it (``t_a``), turned
+        by the autopilot's own rotation from then to this ATTITUDE at ``t_s`` [s], measures the error the hole
+        put in, and nothing else. The anchor shares the error the state had before the hole, which cancels in
+        the residual y ≈ n_θ − v (n the hole's error, v the autopilot's own over the span,
+        :data:`AP_ROTATION_SCALE`). So the update is n's: its covariance P_n is what the bridges added to the
+        covariance, propagated since (nothing else has been fused meanwhile: the others wait for this,
+        :meth:`_awaiting_rotation`), K = P_n·Hᵀ·(H·P_n·Hᵀ + R)⁻¹ and P ← P − K·H·P_n. (Fused as an ordinary
+        attitude measurement with the anchor's covariance in its noise instead, it counted the anchor's
+        information twice: on a third of the IMU lost in short holes the position's χ² left its bound.)"""
+        hole, self._att_hole = self._att_hole, None
+        p_n, self._hole_cov = self._hole_cov, None
+        if hole is None or p_n is None or self.x is None or self.engine is None:
+            return
+        t_a, q_ap_a, q_hat_a = hole
+        span = t_s - t_a
+        if not 0.0 < span <= AP_ROTATION_MAX_S:
+            return
+        turn = quat_multiply(np.array([q_ap_a[0], -q_ap_a[1], -q_ap_a[2], -q_ap_a[3]]), q_b)  # a → b, body axes
+        # the measurement is of the attitude at t_s; the state is at the filter's time, up to a step from it
+        turn = quat_multiply(turn, quat_exp(self._rate_b() * (self.t_s - t_s)))
+        q = self.x.q_nb
+        y = quat_log(quat_multiply(np.array([q[0], -q[1], -q[2], -q[3]]), quat_multiply(q_hat_a, turn)))
+        p = self.engine.P
+        th = IDX["theta"]
+        bg = float(np.sqrt(np.max(np.diag(p)[IDX["bg"]])))
+        angle = float(np.linalg.norm(quat_log(turn)))
+        r = ((bg * span) ** 2 + (AP_ROTATION_SCALE * angle) ** 2 + AP_ROTATION_FLOOR_RAD**2) * np.eye(3)
+        pn_ht = p_n[:, th]  # P_n·Hᵀ, H the attitude's rows (y = δθ − …: ∂y/∂δθ = I)
+        s = pn_ht[th, :] + r
+        try:
+            nis = float(y @ np.linalg.solve(s, y))
+            gain = np.linalg.solve(s, pn_ht.T).T
+        except np.linalg.LinAlgError:
+            return
+        self.nis.setdefault("ap_rotation", deque(maxlen=NIS_WINDOW)).append(nis)
+        if not nis <= GATE_CHI2[3]:
+            self.rejected["ap_rotation"] = self.rejected.get("ap_rotation", 0) + 1
+            return
+        self.x.plus_inplace(gain @ y)
+        p_new = p - gain @ pn_ht.T
+        self.engine.P = 0.5 * (p_new + p_new.T)
+        self.counts["ap_rotation"] = self.counts.get("ap_rotation", 0) + 1
 
     def servo(self, t_s: float, controls_rad: F64Array, throttle: float) -> None:
         self.inputs.controls_rad = np.asarray(controls_rad, float)
