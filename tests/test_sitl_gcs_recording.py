@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from vdm_aero.atmosphere import isa
-from vdm_aero.rotation import euler_from_quat
+from vdm_aero.rotation import euler_from_quat, quat_from_euler, quat_log, quat_multiply
 
 GCS_HZ = 4.0  # every SRx_ group, as the recording GCS asks for it
 GCS_SET = {  # ArduPlane's STREAM_*_msgs members the mock can send
@@ -150,13 +150,19 @@ def test_pressures_in_hpa_barometer_and_airspeed_sensor(flight: Flight) -> None:
 
 
 def test_attitude_and_vfr_hud_are_the_autopilots_estimate(flight: Flight) -> None:
-    """ATTITUDE and VFR_HUD from the autopilot's estimate (the truth, outside GNSS outages, for this mock);
-    VFR_HUD's airspeed the pitot's equivalent airspeed, heading in degrees, throttle in %, altitude AMSL."""
+    """ATTITUDE and VFR_HUD from the autopilot's estimate: its attitude is the truth turned by the error of a gyro
+    integrated at full rate and pulled back by the aiding (sim.flight.ap_attitude: within a degree, and not the
+    truth), its position the truth outside GNSS outages; the body rates the truth's. VFR_HUD's airspeed the
+    pitot's equivalent airspeed, heading in degrees, throttle in %, altitude AMSL."""
+    off = []
     for s, m in flight.msgs["ATTITUDE"]:
         i = flight.row(s)
-        np.testing.assert_allclose([m.roll, m.pitch, m.yaw], euler_from_quat(flight.truth["q_nb"][i]), atol=1e-6)
+        q_ap = quat_from_euler(m.roll, m.pitch, m.yaw)
+        off.append(float(np.linalg.norm(quat_log(quat_multiply(flight.truth["q_nb"][i] * [1, -1, -1, -1], q_ap)))))
         np.testing.assert_allclose([m.rollspeed, m.pitchspeed, m.yawspeed], flight.truth["omega_b_rad_s"][i],
                                    atol=1e-6)  # fmt: skip
+    assert max(off) < math.radians(1.0), max(off)  # an aided estimate's error
+    assert max(off) > 1e-4, max(off)  # ... and not the truth (a float32 message holds ~1e-7 rad)
     for s, m in flight.msgs["VFR_HUD"]:
         i = flight.row(s)
         tr = {k: flight.truth[k][i] for k in ("alt_m", "v_ned_m_s", "q_nb", "throttle", "airspeed_m_s")}
@@ -164,7 +170,8 @@ def test_attitude_and_vfr_hud_are_the_autopilots_estimate(flight: Flight) -> Non
         assert m.groundspeed == pytest.approx(math.hypot(*tr["v_ned_m_s"][:2]), abs=1e-4)
         assert m.climb == pytest.approx(-tr["v_ned_m_s"][2], abs=1e-4)
         yaw = math.degrees(euler_from_quat(tr["q_nb"])[2]) % 360.0
-        assert min(abs(m.heading - yaw), 360.0 - abs(m.heading - yaw)) <= 0.5 + 1e-6
+        # rounded to whole degrees, from the estimate (within the degree its attitude is off, above)
+        assert min(abs(m.heading - yaw), 360.0 - abs(m.heading - yaw)) <= 0.5 + math.degrees(max(off)) + 1e-6
         assert m.throttle == round(100.0 * tr["throttle"])
         eas = tr["airspeed_m_s"] * math.sqrt(isa(tr["alt_m"])[2] / 1.225)  # the pitot's Δp ↦ equivalent airspeed
         assert m.airspeed == pytest.approx(eas, rel=0.03), (m.airspeed, eas, tr["airspeed_m_s"])
