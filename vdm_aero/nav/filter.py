@@ -789,15 +789,18 @@ class NavFilter:
         # correlated with the velocity it turned the specific force into: a random walk in velocity and attitude
         # (what interpolation misses) and, coasting, a manoeuvre held through the gap, whose ramp's variance at the
         # gap's end, (c·T)², a walk of intensity c²·T reaches too
-        q_gap = np.zeros(N_ERR)
-        q_gap[IDX["v"]] = sa**2 + ca**2 * gap_s
-        q_gap[IDX["theta"]] = sw**2 + cw**2 * gap_s
         # Without a rotation to come, the noise goes in at the gap's end (the covariance of before: spread over
         # the steps, its share in the velocity made the aided error of tests/test_nav_filter.py's lossy flight 10 %
         # worse, with nothing to measure it by)
         spread = self._hole_cov is not None
-        if not spread:
-            q_gap[:] = 0.0
+        q_gap = np.zeros(N_ERR)
+        q_gap[IDX["v"]] = sa**2 + ca**2 * gap_s
+        q_gap[IDX["theta"]] = sw**2 + cw**2 * gap_s
+
+        def noise(step: ImuIncrement) -> F64Array:  # the IMU's, and the gap's where it is spread
+            qd = self.process.noise(self.x, step)  # type: ignore[arg-type]
+            return qd + np.diag(q_gap * step.dt_s) if spread else qd
+
         if gap_s <= GAP_INTERPOLATE_MAX_S:
             n = max(math.ceil(gap_s / after.dt_s - 1e-9), 1)
             dt = gap_s / n
@@ -806,9 +809,7 @@ class NavFilter:
             for k in range(n):
                 s = (k + 0.5) / n  # the midpoint of the sub-step on the line from before to after the gap
                 step = ImuIncrement((w0 + s * (w1 - w0)) * dt, (f0 + s * (f1 - f0)) * dt, dt)
-                self._predict(
-                    self.process.transition(self.x, step), self.process.noise(self.x, step) + np.diag(q_gap * dt)
-                )
+                self._predict(self.process.transition(self.x, step), noise(step))
                 self._propagate_bridge(step, self.t_s + (k + 1) * dt)
                 self._buffer.append((self.t_s + (k + 1) * dt, self.x.p_ned.copy(), self.x.v_ned.copy()))
         else:
@@ -817,9 +818,7 @@ class NavFilter:
             f_level_b = dcm_from_quat(self.x.q_nb).T @ np.array([0.0, 0.0, -G0_M_S2]) + self.x.b_accel_b
             held = ImuIncrement(self.x.b_gyro_b * dt, f_level_b * dt, dt)  # bias-corrected: ω = 0, f = −g
             for _ in range(n):
-                self._predict(
-                    self.process.transition(self.x, held), self.process.noise(self.x, held) + np.diag(q_gap * dt)
-                )
+                self._predict(self.process.transition(self.x, held), noise(held))
                 self.process.propagate_inplace(self.x, held)
             self._buffer.clear()  # the delayed-fix buffer holds no coasted guess
         if not spread:
