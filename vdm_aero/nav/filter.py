@@ -414,7 +414,10 @@ class NavFilter:
         self.engine: EkfEngine | None = None
         self.t_s = math.nan
         self.inputs = _Inputs()
+        # the delayed fixes' past: (t [s], p, v), each less the corrections the state had taken by then (_shift)
         self._buffer: deque[tuple[float, F64Array, F64Array]] = deque(maxlen=round(BUFFER_S * config.filter_rate_hz))
+        # the corrections of p and v so far (_correct), as the past takes them: Σ(δp − δv·t_c) and Σδv
+        self._shift = np.zeros(6)
         # GNSS fixes valid after the last IMU step, waiting for the IMU to reach them (gnss); their arguments
         self._pending_gnss: deque[_GnssArgs] = deque(maxlen=PENDING_GNSS_MAX)
         # likewise the first of each other kind of measurement that came ahead of the IMU (_wait_for_imu):
@@ -473,6 +476,7 @@ class NavFilter:
         out.engine = copy.deepcopy(self.engine, memo)
         out.inputs = copy.deepcopy(self.inputs, memo)
         out._buffer = copy.deepcopy(self._buffer, memo)
+        out._shift = self._shift.copy()
         out._pending_gnss = copy.deepcopy(self._pending_gnss, memo)
         out._pending = copy.deepcopy(self._pending, memo)
         out._next_aid, out._last_rejected_s = dict(self._next_aid), dict(self._last_rejected_s)
@@ -607,7 +611,7 @@ class NavFilter:
             self.wind_change.ins_step(t_s, float(x.v_ned[0] - v0[0]), float(x.v_ned[1] - v0[1]), inc.dt_s)
         self._predict(phi, qd)
         self.t_s = t_s
-        self._buffer.append((t_s, x.p_ned.copy(), x.v_ned.copy()))
+        self._remember(t_s)
         # no port frames at all (a dead transducer board, a lost script): as bad as frames without air data. Their
         # silence counts from the IMU's return after a hole of its own: a link that lost both lost no ports
         ports_silent_s = t_s - max(self._last_port_frame_s, self._imu_resumed_s)
@@ -811,7 +815,7 @@ class NavFilter:
                 step = ImuIncrement((w0 + s * (w1 - w0)) * dt, (f0 + s * (f1 - f0)) * dt, dt)
                 self._predict(self.process.transition(self.x, step), noise(step))
                 self._propagate_bridge(step, self.t_s + (k + 1) * dt)
-                self._buffer.append((self.t_s + (k + 1) * dt, self.x.p_ned.copy(), self.x.v_ned.copy()))
+                self._remember(self.t_s + (k + 1) * dt)
         else:
             n = min(max(math.ceil(gap_s / GAP_STEP_S), 1), GAP_MAX_STEPS)
             dt = gap_s / n
@@ -890,10 +894,7 @@ class NavFilter:
         name = model.name
         self.nis.setdefault(name, deque(maxlen=NIS_WINDOW)).append(res.nis)
         if res.accepted:
-            self.x.plus_inplace(dx)
-            if self._att_anchor is not None and self._att_hole is None:  # the anchor takes what its state takes
-                t_a, q_ap_a, q_hat_a = self._att_anchor
-                self._att_anchor = (t_a, q_ap_a, quat_multiply(q_hat_a, quat_exp(dx[IDX["theta"]])))
+            self._correct(dx)
             if state is not None:  # the buffered state takes the same correction: the next measurement of
                 state.plus_inplace(dx)  # the same fix (position after velocity) must not count it twice
             self.counts[name] = self.counts.get(name, 0) + 1
@@ -1007,22 +1008,48 @@ class NavFilter:
 
     def _reset_position(self, p_ned: F64Array) -> None:
         assert self.x is not None and self.engine is not None
-        self.x.p_ned = p_ned - self.x.b_gnss_ned
+        p_new = p_ned - self.x.b_gnss_ned
+        self._shift[:3] += p_new - self.x.p_ned  # the buffered past moves with it (_correct)
+        self.x.p_ned = p_new
         self.engine.reset_states(
             IDX["p"], np.diag([self.config.gnss_pos_sigma_ne_m**2] * 2 + [self.config.gnss_pos_sigma_d_m**2])
         )
         self.counts["gnss_position_reset"] = self.counts.get("gnss_position_reset", 0) + 1
         self._pos_rejected_since = None
 
+    def _correct(self, dx: F64Array) -> None:
+        """x ← x ⊕ δx, an update's correction, which the delayed fixes' buffered past takes too: the error it
+        removes was the past's as well (the errors change little over the buffer's second). A fix judged against
+        a past without it counts it twice: after a hole of the IMU stream whose rotation (_fuse_ap_rotation) put
+        2.2 m/s back into the velocity, the next GNSS fix, valid in the hole, pulled the velocity on by as much
+        again, and the fixes after it were gated out for a second (docs/navigation.md, "A lossy link")."""
+        assert self.x is not None
+        self.x.plus_inplace(dx)
+        # a past state at t_k takes δv and δp − δv·(t_c − t_k): the velocity's error was its error then too
+        t_c = self.t_s if math.isfinite(self.t_s) else 0.0  # before the first IMU step nothing is buffered
+        self._shift[:3] += dx[IDX["p"]] - dx[IDX["v"]] * t_c
+        self._shift[3:] += dx[IDX["v"]]
+        if self._att_anchor is not None and self._att_hole is None:  # the anchor takes what its state takes
+            t_a, q_ap_a, q_hat_a = self._att_anchor
+            self._att_anchor = (t_a, q_ap_a, quat_multiply(q_hat_a, quat_exp(dx[IDX["theta"]])))
+
+    def _remember(self, t_s: float) -> None:
+        """Buffer the position and velocity at ``t_s`` [s] for the delayed fixes (:meth:`_buffered`)."""
+        assert self.x is not None
+        p_shift, v_shift = self._shift[:3] + t_s * self._shift[3:], self._shift[3:]
+        self._buffer.append((t_s, self.x.p_ned - p_shift, self.x.v_ned - v_shift))
+
     def _buffered(self, t_valid_s: float) -> NavState | None:
-        """The state at a past time of validity (position and velocity from the buffer), None if current."""
+        """The state at a past time of validity (position and velocity from the buffer, with every correction
+        taken since), None if current."""
         assert self.x is not None
         if not self._buffer or t_valid_s >= self._buffer[-1][0] - 1e-9:
             return None
         times = [b[0] for b in self._buffer]
         i = int(np.argmin(np.abs(np.asarray(times) - t_valid_s)))
         past = self.x.copy()
-        past.p_ned, past.v_ned = self._buffer[i][1].copy(), self._buffer[i][2].copy()
+        t_k, p_k, v_k = self._buffer[i]
+        past.p_ned, past.v_ned = p_k + self._shift[:3] + t_k * self._shift[3:], v_k + self._shift[3:]
         return past
 
     def baro(self, t_s: float, pressure_pa: float) -> None:
@@ -1161,7 +1188,7 @@ class NavFilter:
         if not nis <= GATE_CHI2[3]:
             self.rejected["ap_rotation"] = self.rejected.get("ap_rotation", 0) + 1
             return
-        self.x.plus_inplace(gain @ y)
+        self._correct(gain @ y)
         p_new = p - gain @ pn_ht.T
         self.engine.P = 0.5 * (p_new + p_new.T)
         self.counts["ap_rotation"] = self.counts.get("ap_rotation", 0) + 1
@@ -1376,7 +1403,7 @@ class NavFilter:
                                               clone, consider)  # fmt: skip
         self.nis.setdefault(model.name, deque(maxlen=NIS_WINDOW)).append(res.nis)
         if res.accepted:
-            self.x.plus_inplace(dx)
+            self._correct(dx)
         self.counts["ins_window_fix"] = self.counts.get("ins_window_fix", 0) + int(res.accepted)
         self._hand_gust_to_wind()  # what the gust took of the change while it went on
         self._wind_live_until_s = max(self._wind_live_until_s, t_s + WIND_RELEARN_S)
