@@ -515,3 +515,39 @@ def test_product_bars_judge_vdm_against_the_autopilots_baselines() -> None:
         "50 % (median 26.0 s)", False)  # fmt: skip
     assert got["harsh wind-shear 300 s: vdm ≤ 0.5× airspeed-dr and ≤ 1.0× ins"] == ("0.98× / 1.07×", False)
     assert got["vdm: FDI false alarms < 1 per 10 h of healthy flight"] == ("1 in 0.70 h", False)
+    # the held-wind dead reckoner beside the order-of-magnitude bar: what holding the wind could reach at best
+    held = {b: m for b, m, _, _ in nav_bench.product_bars(summary, {"harsh/survey/300": {"median_m": 272.0}})}
+    assert held["harsh survey 300 s: ins ≥ 10× vdm"].endswith("true wind of the minute before: 6.2×")
+
+
+def test_the_held_wind_costs_what_the_winds_change_integrates_to() -> None:
+    # before the outage 5 m/s east with a 10-s oscillation (six whole periods in the minute, so its mean is 5 m/s);
+    # from the outage start the wind turns north at k m/s²: a dead reckoner that holds the minute's mean wind and
+    # knows its air velocity is off by ∫k·t dt = ½·k·L² north at the end (the trapezoid is exact on a ramp, and
+    # on whole periods of a sinusoid; 1/32 s is exact in binary, so the minute's edges fall on samples)
+    t = np.arange(0.0, 400.0, 1.0 / 32.0)
+    t0, k = 200.0, 0.01
+    east = 5.0 + np.where(t < t0, 0.8 * np.sin(2.0 * np.pi * t / 10.0), 0.0)
+    north = np.where(t >= t0, k * (t - t0), 0.0)
+    truth = {"t_s": t, "wind_ned_m_s": np.column_stack([north, east, np.full_like(t, 0.3)])}
+    for length in (60.0, 120.0):
+        assert nav_bench.wind_hold_error_m(truth, t0, length) == pytest.approx(0.5 * k * length**2, rel=1e-9)
+    # a steady wind costs nothing, however strong; an outage without the minute before it is refused
+    _, steady = _straight_flight()
+    assert nav_bench.wind_hold_error_m(steady, T0_S, LENGTH_S) == pytest.approx(0.0, abs=1e-9)
+    with pytest.raises(ValueError, match="no truth in the 60 s before"):
+        nav_bench.wind_hold_error_m(truth, -100.0, 60.0)
+    # the report's table and its median over seeds
+    rows = [
+        {"world": "harsh", "scenario": "survey", "outages": {}, "wind_hold_m": {"300": v}}
+        for v in (100.0, 300.0, 250.0)
+    ]
+    hold = nav_bench.wind_hold_summary(rows)
+    assert hold == {"harsh/survey/300": {"median_m": 250.0, "seeds": 3.0}}
+    full = {"p95_m": 1.0, "max_m": 1.0, "seeds": 3, "pct_distance_median": 1.0, "max_during_median_m": 1.0,
+            "reacquisition_jump_median_m": 1.0}  # fmt: skip
+    medians = {"ins": 1700.0, "airspeed-dr": 370.0, "vdm": 200.0}
+    summary = {"harsh/survey/300": {m: {**_mode_summary(v), **full} for m, v in medians.items()}}
+    doc = {"spec": {"modes": list(medians), "seeds": 3}, "runs": rows, "wind_hold": hold, "summary": summary}
+    report = nav_bench.format_report(doc)
+    assert "| harsh | survey | 300 | 3 | 250.0 | 1700.0 | 370.0 | 200.0 | 6.8× |" in report

@@ -193,7 +193,7 @@ def run_nav_drift_cli(args: argparse.Namespace) -> int:
             doc = run_nav_drift(spec, art, jobs=args.jobs, dask_address=args.dask, progress=update)
         paths = write_report(doc, args.out)
     if args.json:
-        print(json.dumps({"summary": doc["summary"], "ins_theory": doc["ins_theory"], "wall_s": doc["wall_s"]}))
+        print(json.dumps({k: doc[k] for k in ("summary", "ins_theory", "wind_hold", "wall_s")}))
     else:
         print(paths["markdown"].read_text())
         print(f"report: {paths['markdown']}  json: {paths['json']}  wall {doc['wall_s']:.0f} s")

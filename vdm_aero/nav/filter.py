@@ -143,6 +143,8 @@ class ModeSpec:
     compass_check: bool = False
     # the same, once the throttle is held outside the throttles the swing learnt the motor's field on
     compass_throttle_range: bool = False
+    # the compass's 1σ [µT] when the mode stands for the autopilot's own filter (None: NavConfig.mag_sigma_ut)
+    mag_sigma_ut: float | None = None
     description: str = ""
 
     def force_model(self, available: Collection[str]) -> str | None:
@@ -162,10 +164,20 @@ def slow_index() -> np.ndarray:
     return np.concatenate([np.arange(IDX[k].start, IDX[k].stop) for k in SLOW_STATES])
 
 
+# ArduPilot EKF3's compass noise, EK3_MAG_M_NSE (default 0.05 gauss = 5 µT, AP_NavEKF3.cpp MAG_M_NSE_DEFAULT for
+# planes and copters alike): the baselines that stand for the autopilot fuse the compass as it does. It is 3.3×
+# NavConfig's 1.5 µT, and it is what makes EKF3 tolerate an uncompensated compass: its residual deviation
+# (soft iron, the motor's field) is a bias of a few µT that a tighter σ, fused at 10 Hz as if white, turns into
+# tilt (docs/navigation.md, "The baselines fuse the compass as EKF3 does")
+EKF3_MAG_SIGMA_UT: Final = 5.0
+
 MODES: Final = {
-    "ins": ModeSpec(description="IMU + baro + mag in the outage (no air data)"),
+    "ins": ModeSpec(mag_sigma_ut=EKF3_MAG_SIGMA_UT, description="IMU + baro + mag in the outage (no air data)"),
     "airspeed-dr": ModeSpec(
-        pitot=True, sideslip=True, description="EKF3-like: pitot TAS + synthetic β = 0 + held wind"
+        pitot=True,
+        sideslip=True,
+        mag_sigma_ut=EKF3_MAG_SIGMA_UT,
+        description="EKF3-like: pitot TAS + synthetic β = 0 + held wind, EKF3's compass noise",
     ),
     "ports-airdata": ModeSpec(ports_airdata=True, description="V, α, β from the ports (FADS), no force model"),
     "vdm-classic": ModeSpec(pitot=True, force="classic", description="pitot + polynomial stability derivatives"),
@@ -1082,7 +1094,8 @@ class NavFilter:
             if not self.in_outage and t_s - self._t_init_s > MAG_LEARN_AFTER_S:
                 dev.observe(m_b, h_b, self.inputs.throttle)
             m_b = m_b - dev.correction_ut(h_b, self.inputs.throttle)
-        field_ned, sigma = self.config.mag_field_ned_ut, self.config.mag_sigma_ut
+        field_ned = self.config.mag_field_ned_ut
+        sigma = self.config.mag_sigma_ut if self.spec.mag_sigma_ut is None else self.spec.mag_sigma_ut
         if self._compass_biased(t_s, m_b, field_ned, sigma) or (self.spec.compass_heading_only and self.in_outage):
             # the heading alone: the compass's residual deviation (soft iron and the motor's field beyond what
             # was learnt, a few µT against its 1.5-µT σ, changing with the throttle in a descent) would
