@@ -538,8 +538,8 @@ def wind_hold_error_m(truth: dict[str, F64Array], t0: float, length: float,
     outage end of a dead reckoner that knows its air-relative velocity exactly and holds the wind at the truth's
     mean over the ``before_s`` seconds before the outage, |∫(w(t) − w̄) dt| over [t0, t0 + length] (trapezoidal on
     the truth's samples; w the wind at the aircraft, turbulence and shear included). It reads the truth, so no
-    filter can have it. Not a bound: a filter that follows the wind through the outage (the INS sees the ground
-    velocity change that the air data do not) can do better; one that holds the wind, as EKF3 does, cannot."""
+    filter can have it. Not a bound: a filter that follows part of the wind's change through the outage (the INS
+    sees the ground velocity change that the air data do not, and a gust state takes its fast part) does better."""
     t, w = truth["t_s"], truth["wind_ned_m_s"][:, :2]
     pre = (t >= t0 - before_s) & (t <= t0)
     if pre.sum() < 2:
