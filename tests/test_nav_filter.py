@@ -164,6 +164,28 @@ def test_port_faults_take_the_gappy_path_and_all_lost_falls_back(world: dict[str
     assert e["vdm-deim"] < 2.0 * e["airspeed-dr"] + 10.0, e
 
 
+def test_the_force_model_is_fused_from_complete_port_frames_only(world: dict[str, Any]) -> None:
+    """A port left out is filled in from the design data's prior, not measured: the force model waits for a
+    complete frame, while the FADS solve goes on without that port."""
+    s = dict(world["sensors"])
+    dp = s["ports_dp_pa"].copy()
+    t = s["ports_t_s"]
+    dp[(t >= 100.0) & (t < 130.0), 5] = np.nan
+    s["ports_dp_pa"] = dp
+    r = _runner(world, ("vdm-deim",), s)
+    f = r.filters["vdm-deim"]
+    r.run_until(99.0)
+    assert f.counts["aero_force"] > 500 and "force_incomplete_frame" not in f.counts
+    r.run_until(100.5)  # the port frames' last complete one, fused at the filter's time
+    force0, airdata0 = f.counts["aero_force"], f.counts["ports_airdata"]
+    r.run_until(129.9)
+    assert f.counts["aero_force"] == force0
+    airdata = f.counts["ports_airdata"] + f.rejected.get("ports_airdata", 0) - airdata0
+    assert airdata > 200 and f.counts["force_incomplete_frame"] >= airdata
+    r.run_until(140.0)
+    assert f.counts["aero_force"] > force0 + 50  # the port is back: so is the force model
+
+
 def _airspeed_errors(world: dict[str, Any], r: LogRunner, t0: float, t1: float) -> np.ndarray:
     """The ports' FADS airspeed of each solved frame in [t0, t1) against the truth [m/s]."""
     err: list[float] = []

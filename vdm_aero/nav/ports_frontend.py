@@ -13,8 +13,9 @@ Port faults, per frame:
   above sees, but the turbulence and the manoeuvres that move every other port's reading from frame to frame
   no longer reach it.
 
-Faulty ports are NaN for the models: the FADS solve drops their rows, the aero model fills them by its
-gappy (MAP) reconstruction, and the noise of both outputs is inflated by n_ports/n_ok.
+Faulty ports are NaN for the models: the FADS solve drops their rows and its noise is inflated by n_ports/n_ok; the
+aero model fills them by its gappy (MAP) reconstruction, which the filter does not fuse (the frame's ``ok`` says
+which ports were left out).
 """
 
 from __future__ import annotations
@@ -204,11 +205,6 @@ class PortFrame:
     @property
     def n_ok(self) -> int:
         return int(np.count_nonzero(self.ok))
-
-    @property
-    def inflation(self) -> float:
-        """Noise inflation for lost ports: n_ports / n_ok (∞ when none is left)."""
-        return len(self.ok) / self.n_ok if self.n_ok else math.inf
 
 
 class PortFrontEnd:
