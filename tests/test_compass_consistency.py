@@ -1,7 +1,8 @@
 """The compass's consistency test in an outage (``vdm``'s, issue 22; ``vdm-no-compass-check`` is the ablation
-without it, ``vdm-no-throttle-range`` without its throttle part): the exponentially weighted means of its
-normalised innovations and of the throttle against the windows' analytic figures, the throttles the swing reports
-it learnt on, and the filter fusing the heading alone once it latches."""
+without it, ``vdm-no-throttle-range`` without its throttle part, ``vdm-no-aided-fit`` without the aided fit): the
+exponentially weighted means of its normalised innovations and of the throttle against the windows' analytic
+figures, the throttles the swing reports it learnt on, the aided innovations' rms per axis, and the filter fusing
+the heading alone once it latches."""
 
 from __future__ import annotations
 
@@ -196,3 +197,98 @@ def test_in_an_outage_a_glide_below_the_learnt_throttles_gives_the_heading_only(
         assert first == math.ceil(math.log((0.7 - THROTTLE_MARGIN) / 0.8) / math.log(1.0 - b)) - 1
     else:
         assert "compass_throttle_outside" not in counts and set(fused) == {"MagField"}
+
+
+def test_the_aided_fit_splits_the_innovations_across_and_along_the_field_and_judges_after_its_minimum() -> None:
+    from vdm_aero.nav.compass_consistency import AIDED_ACROSS_RMS_MAX_UT, AIDED_MIN_N, AidedCompassFit
+
+    w = _across(np.array([0.0, 1.0, 0.0]))
+    w /= np.linalg.norm(w)
+    # ±(c·w + a·u), alternating: the rms across the field is exactly c, along it exactly a
+    for c, a, refuted in ((0.95 * AIDED_ACROSS_RMS_MAX_UT, 3.0, False), (1.05 * AIDED_ACROSS_RMS_MAX_UT, 0.2, True)):
+        fit = AidedCompassFit()
+        assert fit.rms_ut() is None and not fit.refuted
+        for k in range(AIDED_MIN_N):
+            assert not fit.refuted  # too few samples to judge
+            fit.observe((-1.0) ** k * (c * w + a * U), FIELD_B_UT)
+        assert fit.rms_ut() == pytest.approx((c, a)) and fit.refuted is refuted
+
+
+def _aided_then_outage(
+    mode: str, deviation_b_ut: np.ndarray
+) -> tuple[dict[str, int], list[tuple[str, float]], dict[str, Any]]:
+    """A filter flying level north at 19 m/s, its swing ready (learnt on a compass that agreed with the attitude),
+    aided by GNSS at 5 Hz for 30 s with a compass off by ±``deviation_b_ut`` µT, alternately (zero mean: the hard iron
+    cannot take it), then 10 s of outage with a clean compass: its counts, the model and σ [µT]
+    of each compass sample fused in the outage, and its health at the outage's start."""
+    from vdm_aero.nav.filter import GNSS_TIMEOUT_S, NavConfig, NavFilter
+    from vdm_aero.nav.mag_deviation import LEARN_AFTER_N
+    from vdm_aero.vehicle import load_vehicle
+
+    cfg = NavConfig(vehicle=load_vehicle("uav-2m"), origin_alt_m=50.0, mag_field_ned_ut=MAG_NED_UT)
+    f = NavFilter(mode, cfg)
+    f_b = np.array([0.0, 0.0, -G0_M_S2])
+    v = np.array([19.0, 0.0, 0.0])
+    f.initialise(0.0, np.zeros(3), v, f_b, MAG_NED_UT)
+    assert f.mag_deviation is not None
+    for _ in range(2 * LEARN_AFTER_N):
+        f.mag_deviation.observe(MAG_NED_UT, MAG_NED_UT, 0.7)
+    f.servo(0.0, np.zeros(3), 0.7)
+    inc = ImuIncrement(np.zeros(3), f_b * 0.02, 0.02)
+    for k in range(1, 1501):  # 30 s aided
+        t = k * 0.02
+        f.imu(t, inc)
+        if k % 10 == 0:
+            f.gnss(t, t, v * t, v)
+        if k % 5 == 0:
+            sign = (-1.0) ** (k // 5)
+            f.mag(t, MAG_NED_UT + sign * deviation_b_ut)
+    for k in range(1, round((GNSS_TIMEOUT_S + 0.5) / 0.02) + 1):
+        f.imu(30.0 + k * 0.02, inc)
+    assert f.in_outage
+    health = f.health()
+    fused: list[tuple[str, float]] = []
+    fuse = f._fuse
+
+    def spy(meas: Measurement, *args: Any, **kwargs: Any) -> UpdateResult:
+        if meas.model.name == "mag":
+            fused.append((type(meas.model).__name__, float(getattr(meas.model, "sigma_ut", math.nan))))
+        return fuse(meas, *args, **kwargs)
+
+    f._fuse = spy  # type: ignore[method-assign]
+    for k in range(1, 501):  # 10 s of outage, a clean compass
+        t = f.t_s + 0.02
+        f.imu(t, inc)
+        if k % 5 == 0:
+            f.mag(t, dcm_from_quat(np.array([1.0, 0.0, 0.0, 0.0])).T @ MAG_NED_UT)
+    return dict(f.counts), fused, health
+
+
+X_2UT = np.array([2.0, 0.0, 0.0])  # level and heading north: 1.84 µT across the field, 0.79 µT along it
+
+
+@pytest.mark.parametrize(("mode", "deviation_b_ut", "loosened"),
+                         [("vdm", X_2UT, True), ("vdm", X_2UT / 4.0, False), ("vdm", 3.0 * U, False),
+                          ("vdm-no-aided-fit", X_2UT, False)])  # fmt: skip
+def test_a_compass_whose_aided_innovations_across_the_field_passed_the_bar_is_fused_at_ekf3s_sigma_in_the_outage(
+    mode: str, deviation_b_ut: np.ndarray, loosened: bool
+) -> None:
+    from vdm_aero.nav.filter import EKF3_MAG_SIGMA_UT, NavConfig
+
+    counts, fused, health = _aided_then_outage(mode, deviation_b_ut)
+    # the compass's three axes throughout (the field's strength and the throttle never latch the heading alone),
+    # at EKF3's σ where the aided fit was refuted, at the configured σ elsewhere: 3 µT along the field (a compass
+    # whose strength is off, which no attitude error makes) is not a refutation
+    sigma = EKF3_MAG_SIGMA_UT if loosened else NavConfig.mag_sigma_ut
+    assert len(fused) >= 90 and set(fused) == {("MagField", sigma)}
+    assert counts.get("compass_aided_misfit") == (1 if loosened else None)
+    fit = health["compass_aided_fit"]
+    if mode == "vdm":
+        # every aided sample counted: the innovation is the deviation, less what the filter took of it
+        across = float(np.linalg.norm(_across(deviation_b_ut)))
+        along = float(abs(deviation_b_ut @ U))
+        assert fit["ekf3_sigma_in_outage"] is loosened
+        assert 0.7 * across - 0.05 < fit["across_rms_ut"] < 1.05 * across + 0.05
+        assert 0.7 * along - 0.05 < fit["along_rms_ut"] < 1.05 * along + 0.05
+    else:
+        assert fit is None

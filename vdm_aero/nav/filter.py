@@ -40,7 +40,7 @@ from vdm_aero.nav.airdata_fdi import (
     WindChangeDetector,
     wind_change_threshold_m_s,
 )
-from vdm_aero.nav.compass_consistency import CompassConsistency
+from vdm_aero.nav.compass_consistency import AidedCompassFit, CompassConsistency
 from vdm_aero.nav.contracts import ImuIncrement, Measurement, evaluate_with_jacobian
 from vdm_aero.nav.design_fit import StabilityDerivatives
 from vdm_aero.nav.engine import EkfEngine, UpdateResult
@@ -143,6 +143,9 @@ class ModeSpec:
     compass_check: bool = False
     # the same, once the throttle is held outside the throttles the swing learnt the motor's field on
     compass_throttle_range: bool = False
+    # in an outage the compass at EKF3's σ once its innovations while GNSS aided it, since the swing's correction
+    # applies, showed more than its tilt can be held with (vdm_aero.nav.compass_consistency.AidedCompassFit)
+    compass_aided_fit: bool = False
     # the compass's 1σ [µT] when the mode stands for the autopilot's own filter (None: NavConfig.mag_sigma_ut)
     mag_sigma_ut: float | None = None
     description: str = ""
@@ -193,9 +196,11 @@ MODES: Final = {
         wind_gradient=True,
         compass_check=True,
         compass_throttle_range=True,
+        compass_aided_fit=True,
         description="the product: pitot + port air data + force model, air-data FDI, wind relearnt with its "
         "gradient with height, compass deviation learnt in flight, the compass's heading alone in an outage once "
-        "its field's strength is off or the throttle is held outside what the deviation was learnt on",
+        "its field's strength is off or the throttle is held outside what the deviation was learnt on, and at "
+        "EKF3's σ once its innovations while GNSS aided were past what the tilt can be held with",
     ),
 }
 # The product mode with one part taken away, for the benchmark's ablation table (not offered to serve or
@@ -216,7 +221,10 @@ ABLATIONS: Final = {
     "vdm-no-throttle-range": replace(_VDM, compass_throttle_range=False,
                                      description="ablation: vdm whose compass keeps its three axes through an "
                                      "outage at throttles its deviation was not learnt on"),
-    "vdm-no-compass-check": replace(_VDM, compass_check=False, compass_throttle_range=False,
+    "vdm-no-aided-fit": replace(_VDM, compass_aided_fit=False,
+                                description="ablation: vdm whose compass keeps its σ in an outage whatever its "
+                                "innovations while GNSS aided"),
+    "vdm-no-compass-check": replace(_VDM, compass_check=False, compass_throttle_range=False, compass_aided_fit=False,
                                     description="ablation: vdm whose compass keeps its three axes through an outage "
                                     "whatever its field's strength"),
 }  # fmt: skip
@@ -459,6 +467,8 @@ class NavFilter:
         self.wind_change = WindChangeDetector() if self.spec.wind_relearn else None
         self.mag_deviation = MagDeviation(config.mag_field_ned_ut) if self.spec.mag_deviation else None
         self.compass_check = CompassConsistency() if self.spec.compass_check else None
+        self.compass_fit = AidedCompassFit() if self.spec.compass_aided_fit and self.spec.mag_deviation else None
+        self._outage_misfit_counted_s = math.nan  # the outage (by its last fix) whose loosened compass was counted
         # with the wind's gradient as states, the wind follows a climb or a descent and its covariance grows
         # through Φ by the height changed times the gradient's σ: what EKF3's WIND_PSCALE stands in for
         if self.spec.wind_relearn and not self.spec.wind_gradient:
@@ -501,6 +511,7 @@ class NavFilter:
         out.wind_change = copy.deepcopy(self.wind_change, memo)
         out.mag_deviation = copy.deepcopy(self.mag_deviation, memo)
         out.compass_check = copy.deepcopy(self.compass_check, memo)
+        out.compass_fit = copy.deepcopy(self.compass_fit, memo)
         out._carried = copy.deepcopy(self._carried, memo)
         return out
 
@@ -541,6 +552,11 @@ class NavFilter:
             # the compass swing: samples learnt, and whether its correction is applied yet
             "compass_deviation": None if self.mag_deviation is None else {
                 "samples": self.mag_deviation.n, "applied": self.mag_deviation.ready},
+            # the compass's innovations while aided since then, rms across and along the field [µT], and whether an
+            # outage fuses the compass at EKF3's σ for them
+            "compass_aided_fit": None if (fit := self.compass_fit) is None or (rms := fit.rms_ut()) is None else {
+                "across_rms_ut": round(rms[0], 2), "along_rms_ut": round(rms[1], 2),
+                "ekf3_sigma_in_outage": fit.refuted},
             # the wind's change per 100 m of height (N, E) [m/s], as learnt (the modes that carry it)
             "wind_gradient_m_s_per_100m": None if self.x is None or not self.spec.wind_gradient else [
                 round(100.0 * float(g), 2) for g in self.x.wind_gradient_ne_per_s],
@@ -1096,6 +1112,14 @@ class NavFilter:
             m_b = m_b - dev.correction_ut(h_b, self.inputs.throttle)
         field_ned = self.config.mag_field_ned_ut
         sigma = self.config.mag_sigma_ut if self.spec.mag_sigma_ut is None else self.spec.mag_sigma_ut
+        fit = self.compass_fit
+        if fit is not None and self.in_outage and fit.refuted:
+            # its aided innovations showed more than σ holds the tilt with: in the outage the compass is fused as
+            # the autopilot fuses it (docs/navigation.md, "The compass's aided fit")
+            sigma = max(sigma, EKF3_MAG_SIGMA_UT)
+            if self._outage_misfit_counted_s != self._last_gnss_s:
+                self._outage_misfit_counted_s = self._last_gnss_s
+                self.counts["compass_aided_misfit"] = self.counts.get("compass_aided_misfit", 0) + 1
         if self._compass_biased(t_s, m_b, field_ned, sigma) or (self.spec.compass_heading_only and self.in_outage):
             # the heading alone: the compass's residual deviation (soft iron and the motor's field beyond what
             # was learnt, a few µT against its 1.5-µT σ, changing with the throttle in a descent) would
@@ -1105,7 +1129,10 @@ class NavFilter:
             psi = MagHeading.measured(self.x, m_b, field_ned)
             self._fuse(Measurement(t_s, np.array([psi]), MagHeading(sigma / float(np.hypot(*field_ned[:2])))))
         else:
-            self._fuse(Measurement(t_s, m_b, MagField(field_ned, sigma)))
+            model = MagField(field_ned, sigma)
+            if fit is not None and not self.in_outage and dev is not None and dev.ready:
+                fit.observe(m_b - model.evaluate(self.x), dcm_from_quat(self.x.q_nb).T @ field_ned)
+            self._fuse(Measurement(t_s, m_b, model))
 
     def _compass_biased(self, t_s: float, m_b: F64Array, field_ned: F64Array, sigma: float) -> bool:
         """Whether the compass's three axes are to be left out for the rest of this outage
