@@ -224,7 +224,7 @@ ABLATIONS: Final = {
     "vdm-no-aided-fit": replace(_VDM, compass_aided_fit=False,
                                 description="ablation: vdm whose compass keeps its σ in an outage whatever its "
                                 "innovations while GNSS aided"),
-    "vdm-no-compass-check": replace(_VDM, compass_check=False, compass_throttle_range=False, compass_aided_fit=False,
+    "vdm-no-compass-check": replace(_VDM, compass_check=False, compass_throttle_range=False,
                                     description="ablation: vdm whose compass keeps its three axes through an outage "
                                     "whatever its field's strength"),
 }  # fmt: skip
