@@ -514,10 +514,72 @@ def test_product_bars_judge_vdm_against_the_autopilots_baselines() -> None:
     assert got["harsh pitot-icing 300 s: vdm flags the pitot within 10 s of the fault (≥ 90 % of seeds)"] == (
         "50 % (median 26.0 s)", False)  # fmt: skip
     assert got["harsh wind-shear 300 s: vdm ≤ 0.5× airspeed-dr and ≤ 1.0× ins"] == ("0.98× / 1.07×", False)
-    assert got["vdm: FDI false alarms < 1 per 10 h of healthy flight"] == ("1 in 0.70 h", False)
+    assert got["vdm: FDI false alarms < 1 per 10 h of healthy flight"] == (
+        "1 in 0.70 h (95 % interval 0.36–79.59 per 10 h)", False)  # fmt: skip
     # the held-wind dead reckoner beside the order-of-magnitude bar: what holding the wind could reach at best
     held = {b: m for b, m, _, _ in nav_bench.product_bars(summary, {"harsh/survey/300": {"median_m": 272.0}})}
     assert held["harsh survey 300 s: ins ≥ 10× vdm"].endswith("true wind of the minute before: 6.2×")
+
+
+def test_the_ratio_interval_covers_the_true_ratio_and_uses_the_shared_weather() -> None:
+    # 20 flights per trial, every mode in the same weather (a shared heavy-tailed factor, as the seeds' turbulence
+    # and wind are), each mode's own error on top: the population medians' ratio is exactly r. A 95 % interval
+    # should cover r in at least about 95 % of trials (the percentile bootstrap of a median of 20 is
+    # conservative, ~98 % here), with finite ends. Drawn in pairs, the shared weather cancels: the interval is
+    # about half as wide as scipy's unpaired bootstrap of the same statistic on the same flights
+    from scipy.stats import bootstrap
+
+    def ratio(a: np.ndarray, b: np.ndarray, c: np.ndarray, axis: int = -1) -> np.ndarray:
+        return np.asarray(np.median(a, axis=axis) / np.minimum(np.median(b, axis=axis), np.median(c, axis=axis)))
+
+    rng = np.random.default_rng(7)
+    r, trials, covered, width, unpaired = 1.3, 200, 0, [], []
+    for k in range(trials):
+        weather = rng.lognormal(0.0, 1.0, 20)
+        vdm = r * weather * rng.lognormal(0.0, 0.3, 20)
+        dr, ins = weather * rng.lognormal(0.0, 0.3, 20), 5.0 * weather * rng.lognormal(0.0, 0.3, 20)
+        ci = nav_bench.median_ratio_interval(vdm, ins, dr)
+        assert ci is not None and 0.0 < ci[0] <= ci[1] < math.inf
+        covered += ci[0] <= r <= ci[1]
+        width.append(math.log(ci[1] / ci[0]))
+        if k < 40:
+            ref = bootstrap((vdm, ins, dr), ratio, vectorized=True, n_resamples=2000, method="percentile",
+                            rng=np.random.default_rng(k)).confidence_interval  # fmt: skip
+            unpaired.append(math.log(ref.high / ref.low))
+    assert covered / trials >= 0.93
+    assert np.median(width[:40]) < 0.6 * np.median(unpaired)
+    # a product error exactly proportional to the baseline's has no spread to resample
+    dr = rng.lognormal(4.0, 1.0, 20)
+    assert nav_bench.median_ratio_interval(1.2 * dr, dr) == pytest.approx((1.2, 1.2))
+    assert nav_bench.median_ratio_interval([1.0, 2.0], [1.0, 1.0]) is None  # two seeds: no interval
+
+
+def test_an_alarm_rate_interval_is_garwoods() -> None:
+    # the exact Poisson 95 % limits tabulated by Garwood (1936) and in every table since (e.g. Ulm 1990): 0 → (0,
+    # 3.689), 1 → (0.0253, 5.572), 5 → (1.624, 11.668) events, here over 2 h
+    for k, lo, hi in ((0, 0.0, 3.689), (1, 0.0253, 5.572), (5, 1.624, 11.668)):
+        assert nav_bench.rate_interval(k, 2.0) == pytest.approx((lo / 2.0, hi / 2.0), rel=2e-3, abs=1e-9)
+    # so no alarm in 26.5 h (the healthy hours measured) does not show a rate under 1 per 10 h; 4 in 10.7 h shows
+    # one over it
+    assert "do not resolve it" in nav_bench.resolved([10.0 * r for r in nav_bench.rate_interval(0, 26.5)], 1.0)
+    assert "lies above 1" in nav_bench.resolved([10.0 * r for r in nav_bench.rate_interval(4, 10.7)], 1.0)
+
+
+def test_the_bars_say_whether_the_seeds_resolve_them() -> None:
+    dr = [60.0, 80.0, 100.0, 150.0, 500.0, 70.0, 40.0]
+    err = {"vdm": [50.0, 90.0, 120.0, 200.0, 400.0, 60.0, 75.0], "ins": [10.0 * d for d in dr], "airspeed-dr": dr}
+    u = nav_bench.product_ratio_uncertainty(err)
+    assert u["better_than_best_seeds"] == 3  # against airspeed-dr, the baseline with the lower median
+    lo, hi = u["ratio_ci95_best"]
+    assert lo < 90.0 / 80.0 < hi and u["ratio_ci95_airspeed-dr"] == [lo, hi]
+    assert u["ratio_ci95_ins"][1] < 0.5  # a tenth of ins's error on every flight
+    per = {"ins": {"median_m": 800.0}, "airspeed-dr": {"median_m": 80.0},
+           "vdm": {"median_m": 90.0, "seeds": 7, **u}}  # fmt: skip
+    bar = next(b for b in nav_bench.product_bars({"harsh/survey/300": per}) if "1.05×" in b[0])
+    assert bar[1].startswith(f"90 / 80 m = 1.12× (95 % interval {lo:.2f}–{hi:.2f}×, better on 3 of 7 flights)")
+    assert not bar[2] and "do not resolve it" in bar[3]
+    shear = next(b for b in nav_bench.product_bars({"harsh/wind-shear/300": per}) if "0.5×" in b[0])
+    assert "against ins: the seeds resolve it: the 95 % interval lies below 1×" in shear[3]
 
 
 def test_the_held_wind_costs_what_the_winds_change_integrates_to() -> None:

@@ -34,7 +34,7 @@ import math
 import multiprocessing
 import os
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Final
@@ -702,8 +702,72 @@ def summarise(rows: list[dict[str, Any]], spec: BenchSpec) -> dict[str, Any]:
                                       symptoms_s=[r.get("fault_symptom_s") for r in runs])  # fmt: skip
                 if SCENARIOS[sc][3] not in _WIND_MODS:
                     per[m] |= wind_alarm_summary(ms, float(key))
+        if PRODUCT in per and {"ins", "airspeed-dr"} <= per.keys():
+            err = {m: [r["outages"][key][m]["final_error_m"] for r in runs] for m in (PRODUCT, "ins", "airspeed-dr")}
+            per[PRODUCT] |= product_ratio_uncertainty(err)
         out[f"{world}/{sc}/{key}"] = per
     return out
+
+
+BOOTSTRAP_RESAMPLES: Final = 4000
+BOOTSTRAP_SEED: Final = 22  # the report's own draws, fixed: the same runs give the same report
+RATIO_LEVEL: Final = 0.95
+
+
+def median_ratio_interval(num: Sequence[float] | F64Array, *dens: Sequence[float] | F64Array
+                          ) -> tuple[float, float] | None:  # fmt: skip
+    """The 95 % interval of median(``num``) ÷ min over ``dens`` of median(den), the ratio a bar judges, from the
+    paired percentile bootstrap over seeds (``scipy.stats.bootstrap``, ``paired=True``: a seed's flights are
+    drawn together, since every mode flew the same weather, and their errors move together). None under
+    three seeds. A median of a few heavy-tailed errors moves by tens of percent with the draw of seeds: the
+    interval says whether the seeds flown can tell a bar's verdict from that."""
+    n = len(num)
+    if n < 3 or any(len(d) != n for d in dens):
+        return None
+    from scipy.stats import bootstrap  # the benchmark's extra (sim), not the service's
+
+    def ratio(a: F64Array, *b: F64Array, axis: int = -1) -> F64Array:
+        best = np.min([np.median(x, axis=axis) for x in b], axis=0)
+        return np.asarray(np.median(a, axis=axis) / best)
+
+    res = bootstrap((np.asarray(num, float), *(np.asarray(d, float) for d in dens)), ratio, paired=True,
+                    vectorized=True, n_resamples=BOOTSTRAP_RESAMPLES, confidence_level=RATIO_LEVEL,
+                    method="percentile", rng=np.random.default_rng(BOOTSTRAP_SEED))  # fmt: skip
+    ci = res.confidence_interval
+    return float(ci.low), float(ci.high)
+
+
+def product_ratio_uncertainty(err: Mapping[str, Sequence[float]]) -> dict[str, Any]:
+    """What the seeds say of the product's ratios (``err``: each mode's final errors, the same flights in the
+    same order): the 95 % intervals of its median over the best baseline's and over each baseline's, and on how
+    many flights it ended nearer the truth than the baseline with the lower median."""
+    v, ins, dr = (np.asarray(err[m], float) for m in (PRODUCT, "ins", "airspeed-dr"))
+    best = ins if np.median(ins) < np.median(dr) else dr
+    out: dict[str, Any] = {"better_than_best_seeds": int((v < best).sum())}
+    for name, dens in (("best", (ins, dr)), ("airspeed-dr", (dr,)), ("ins", (ins,))):
+        ci = median_ratio_interval(v, *dens)
+        if ci is not None:
+            out[f"ratio_ci95_{name}"] = list(ci)
+    return out
+
+
+def rate_interval(count: int, exposure: float) -> tuple[float, float]:
+    """The exact (Garwood) 95 % interval of a Poisson rate seen ``count`` times in ``exposure`` (hours, say): the
+    χ² quantiles of 2k and 2k + 2 degrees of freedom, halved. Zero alarms in 26.5 h still allow 1.4 per 10 h."""
+    from scipy.stats import chi2  # the benchmark's extra (sim), not the service's
+
+    lo = 0.0 if count == 0 else float(chi2.ppf(0.5 - RATIO_LEVEL / 2.0, 2 * count)) / 2.0
+    return lo / exposure, float(chi2.ppf(0.5 + RATIO_LEVEL / 2.0, 2 * count + 2)) / 2.0 / exposure
+
+
+def resolved(ci: Sequence[float] | None, bar: float, unit: str = "×", what: str = "seeds") -> str:
+    """Whether an interval (:func:`median_ratio_interval`, :func:`rate_interval`) lies clear of its bar: the
+    verdict the ``what`` flown can give."""
+    if ci is None:
+        return f"the {what} are too few for an interval"
+    if ci[0] <= bar <= ci[1]:
+        return f"the {what} do not resolve it: {bar:g}{unit} is inside the 95 % interval"
+    return f"the {what} resolve it: the 95 % interval lies {'below' if ci[1] < bar else 'above'} {bar:g}{unit}"
 
 
 def wind_hold_summary(rows: list[dict[str, Any]]) -> dict[str, dict[str, float]]:
@@ -1040,6 +1104,14 @@ PRODUCT: Final = "vdm"
 HEALTHY_SCENARIOS: Final = ("survey", "survey-calm", "loiter", "manoeuvring")
 
 
+def interval(ci: Sequence[float] | None, per: dict[str, Any] | None = None) -> str:
+    """A ratio's 95 % interval as the bars print it (and, from ``per``, the flights the product won), or ""."""
+    if ci is None:
+        return ""
+    won = "" if per is None else f", better on {per['better_than_best_seeds']} of {per['seeds']} flights"
+    return f" (95 % interval {ci[0]:.2f}–{ci[1]:.2f}×{won})"
+
+
 def product_bars(summary: dict[str, Any], wind_hold: dict[str, dict[str, float]] | None = None
                  ) -> list[tuple[str, str, bool, str]]:  # fmt: skip
     """Issue 22's bars for the product mode (when the run has it): never worse than what the autopilot has,
@@ -1070,13 +1142,16 @@ def product_bars(summary: dict[str, Any], wind_hold: dict[str, dict[str, float]]
         hours += per[v].get("fdi_healthy_h", 0.0)
         if a is not None and b is not None and ins is not None:
             best = min(b, ins)
+            ci = per[v].get("ratio_ci95_best")
             out.append((f"{w} {sc} {length} s: {v} ≤ 1.05× the best of ins and {dr}",
-                        f"{a:.0f} / {best:.0f} m = {a / best:.2f}×", a <= 1.05 * best,
-                        "the same flights; a median of few seeds"))  # fmt: skip
+                        f"{a:.0f} / {best:.0f} m = {a / best:.2f}×{interval(ci, per[v])}", a <= 1.05 * best,
+                        f"the same flights; {resolved(ci, 1.05)}"))  # fmt: skip
         if sc in FAULT_SOURCES and length in ("120", "300") and a is not None and b is not None:
             if sc.startswith("pitot-"):
-                out.append((f"{w} {sc} {length} s: {v} ≤ 0.5× {dr}", f"{a / b:.2f}×", a <= 0.5 * b,
-                            f"{dr} reads the failed pitot; a fault too mild to matter passes"))  # fmt: skip
+                ci = per[v].get("ratio_ci95_airspeed-dr")
+                out.append((f"{w} {sc} {length} s: {v} ≤ 0.5× {dr}", f"{a / b:.2f}×{interval(ci)}", a <= 0.5 * b,
+                            f"{dr} reads the failed pitot; a fault too mild to matter passes; "
+                            f"{resolved(ci, 0.5)}"))  # fmt: skip
             healthy = med(f"{w}/survey/{length}", v)
             if healthy is not None:
                 out.append((f"{w} {sc} {length} s: {v} ≤ 1.3× its healthy survey", f"{a / healthy:.2f}×",
@@ -1096,8 +1171,11 @@ def product_bars(summary: dict[str, Any], wind_hold: dict[str, dict[str, float]]
                             "harmless for its first seconds"))  # fmt: skip
         if sc in ("wind-shear", "rtl-wind-gradient") and length == "300" and None not in (a, b, ins):
             assert a is not None and b is not None and ins is not None
-            out.append((f"{w} {sc} 300 s: {v} ≤ 0.5× {dr} and ≤ 1.0× ins", f"{a / b:.2f}× / {a / ins:.2f}×",
-                        a <= 0.5 * b and a <= ins, "the held wind is what a wind change breaks"))  # fmt: skip
+            ci_dr, ci_ins = per[v].get("ratio_ci95_airspeed-dr"), per[v].get("ratio_ci95_ins")
+            out.append((f"{w} {sc} 300 s: {v} ≤ 0.5× {dr} and ≤ 1.0× ins",
+                        f"{a / b:.2f}×{interval(ci_dr)} / {a / ins:.2f}×{interval(ci_ins)}",
+                        a <= 0.5 * b and a <= ins, f"the held wind is what a wind change breaks; against {dr}: "
+                        f"{resolved(ci_dr, 0.5)}; against ins: {resolved(ci_ins, 1.0)}"))  # fmt: skip
         if sc == "survey" and length == "300" and a is not None and ins is not None:
             hold = (wind_hold or {}).get(key, {}).get("median_m")
             held = "" if hold is None else (f"; ins ÷ a dead reckoner with the exact air velocity that holds the "
@@ -1106,15 +1184,20 @@ def product_bars(summary: dict[str, Any], wind_hold: dict[str, dict[str, float]]
                         "the harsh world's INS; a kind IMU would shrink the ratio"))  # fmt: skip
     if hours > 0.0:
         rate = false_alarms / hours
+        ci = [10.0 * r for r in rate_interval(false_alarms, hours)]
         out.append((f"{v}: FDI false alarms < 1 per 10 h of healthy flight",
-                    f"{false_alarms} in {hours:.2f} h", rate < 0.1,
-                    "few hours: zero alarms in under 10 h cannot show the rate is below 1 per 10 h"))  # fmt: skip
+                    f"{false_alarms} in {hours:.2f} h (95 % interval {ci[0]:.2f}–{ci[1]:.2f} per 10 h)", rate < 0.1,
+                    f"{resolved(ci, 1.0, ' per 10 h', 'hours')}: zero alarms need 37 h to show a rate under 1 per "
+                    "10 h"))  # fmt: skip
     if outage_h > 0.0:
         seen = f"; {COST_SCENARIO} median error with one / without (flights with one): " if with_alarm else ""
+        ci = [10.0 * r for r in rate_interval(wind_alarms, outage_h)]
         out.append((f"{v}: wind-change alarms < 1 per 10 h of outage flight where the wind does not change",
-                    f"{wind_alarms} in {outage_h:.2f} h{seen}{'; '.join(with_alarm)}",
+                    f"{wind_alarms} in {outage_h:.2f} h (95 % interval {ci[0]:.2f}–{ci[1]:.2f} per 10 h)"
+                    f"{seen}{'; '.join(with_alarm)}",
                     wind_alarms / outage_h < 0.1, "each relearns the wind from a gust; the survey and the pitot "
-                    "faults share their flights, so one gust can count in each"))  # fmt: skip
+                    f"faults share their flights, so one gust can count in each; "
+                    f"{resolved(ci, 1.0, ' per 10 h', 'hours')}"))  # fmt: skip
     return out
 
 

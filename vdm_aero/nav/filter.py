@@ -1131,7 +1131,7 @@ class NavFilter:
         else:
             model = MagField(field_ned, sigma)
             if fit is not None and not self.in_outage and dev is not None and dev.ready:
-                fit.observe(m_b - model.evaluate(self.x), dcm_from_quat(self.x.q_nb).T @ field_ned)
+                fit.observe(m_b - model.evaluate(self.x), h_b)  # h_b: the swing's, the same field and attitude
             self._fuse(Measurement(t_s, m_b, model))
 
     def _compass_biased(self, t_s: float, m_b: F64Array, field_ned: F64Array, sigma: float) -> bool:
