@@ -1187,7 +1187,7 @@ def product_bars(summary: dict[str, Any], wind_hold: dict[str, dict[str, float]]
         ci = [10.0 * r for r in rate_interval(false_alarms, hours)]
         out.append((f"{v}: FDI false alarms < 1 per 10 h of healthy flight",
                     f"{false_alarms} in {hours:.2f} h (95 % interval {ci[0]:.2f}–{ci[1]:.2f} per 10 h)", rate < 0.1,
-                    f"{resolved(ci, 1.0, ' per 10 h', 'hours')}: zero alarms need 37 h to show a rate under 1 per "
+                    f"{resolved(ci, 1.0, ' per 10 h', 'hours')}; zero alarms need 37 h to show a rate under 1 per "
                     "10 h"))  # fmt: skip
     if outage_h > 0.0:
         seen = f"; {COST_SCENARIO} median error with one / without (flights with one): " if with_alarm else ""
