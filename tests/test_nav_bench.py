@@ -240,6 +240,23 @@ def test_seeds_on_a_dask_cluster_give_every_unit_once(monkeypatch: pytest.Monkey
     )
 
 
+def test_the_report_puts_every_mode_against_the_product_on_the_same_flights(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Any
+) -> None:
+    monkeypatch.setattr(nav_bench, "run_unit", _fake_unit)
+    spec = BenchSpec(scenarios=("survey",), seeds=5, outages_s=(60.0,), modes=("ins", "airspeed-dr", "vdm"))
+    doc = run_nav_drift(spec, NavArtifacts(tmp_path, tmp_path, tmp_path), jobs=1)
+    per = doc["summary"]["kind/survey/60"]
+    # _fake_unit: seed + 10·(the mode's place) + 60 m, seeds 0–4: medians 62, 72 and 82 m
+    assert per["ins"]["ratio_to_product"] == pytest.approx(62.0 / 82.0)
+    lo, hi = per["ins"]["ratio_to_product_ci95"]
+    assert lo < 62.0 / 82.0 < hi < 1.0  # ins is better on every flight: the seeds resolve it
+    assert "ratio_to_product" not in per["vdm"]
+    lines = nav_bench.format_report(doc).splitlines()
+    assert lines[lines.index(nav_bench._HEADER) + 2].endswith(f"| 0.76 ({lo:.2f}–{hi:.2f}) |")
+    assert next(x for x in lines if x.startswith("| vdm |")).endswith("| — |")
+
+
 def test_the_harsh_run_flies_both_worlds_and_each_effect_alone(monkeypatch: pytest.MonkeyPatch, tmp_path: Any) -> None:
     monkeypatch.setattr(nav_bench, "run_unit", _fake_unit)
     monkeypatch.setattr(nav_bench, "calibrate_airframe", lambda *a: tmp_path)

@@ -705,6 +705,13 @@ def summarise(rows: list[dict[str, Any]], spec: BenchSpec) -> dict[str, Any]:
         if PRODUCT in per and {"ins", "airspeed-dr"} <= per.keys():
             err = {m: [r["outages"][key][m]["final_error_m"] for r in runs] for m in (PRODUCT, "ins", "airspeed-dr")}
             per[PRODUCT] |= product_ratio_uncertainty(err)
+        if PRODUCT in per:  # every other mode and ablation against the product, on the same flights
+            product = [r["outages"][key][PRODUCT]["final_error_m"] for r in runs]
+            for m in per.keys() - {PRODUCT}:
+                per[m]["ratio_to_product"] = per[m]["median_m"] / per[PRODUCT]["median_m"]
+                ci = median_ratio_interval([r["outages"][key][m]["final_error_m"] for r in runs], product)
+                if ci is not None:
+                    per[m]["ratio_to_product_ci95"] = list(ci)
         out[f"{world}/{sc}/{key}"] = per
     return out
 
@@ -1016,7 +1023,7 @@ def ins_theory(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 _HEADER: Final = (
     "| mode | median [m] | p95 [m] | max [m] | % of distance | max during [m] | 2σ covers | NEES in band "
-    "| reacq. jump [m] | filter CPU / flight s |"
+    "| reacq. jump [m] | filter CPU / flight s | ÷ vdm (95 % interval) |"
 )
 
 
@@ -1225,6 +1232,15 @@ def cost_table(rows: Sequence[dict[str, Any]], modes: Sequence[str], stat: str =
     return sorted(out, key=lambda r: (order.get(r[0], 2 if r[0].startswith("harsh") else 1), r[0]))
 
 
+def _to_product(stats: dict[str, Any]) -> str:
+    """A mode's median over the product's on the same flights, with its 95 % interval (the report's last
+    column): above 1 with the interval above 1 too, the product's win over that mode is one the seeds resolve."""
+    if "ratio_to_product" not in stats:
+        return "—"
+    ci = stats.get("ratio_to_product_ci95")
+    return f"{stats['ratio_to_product']:.2f}" + ("" if ci is None else f" ({ci[0]:.2f}–{ci[1]:.2f})")
+
+
 def format_report(doc: dict[str, Any]) -> str:
     spec = doc["spec"]
     first = int(spec.get("first_seed", 0))  # a run on other seeds says which: a threshold's unseen-seed check
@@ -1235,13 +1251,13 @@ def format_report(doc: dict[str, Any]) -> str:
         if world.startswith("only:"):
             continue
         n = max((s["seeds"] for s in per.values()), default=0)
-        lines += [f"## {world} world: {sc}, {length} s outage ({n} seeds)", "", _HEADER, "|---" * 10 + "|"]
+        lines += [f"## {world} world: {sc}, {length} s outage ({n} seeds)", "", _HEADER, "|---" * 11 + "|"]
         for m, s in per.items():
             lines.append(
                 f"| {m} | {s['median_m']:.1f} | {s['p95_m']:.1f} | {s['max_m']:.1f} | {s['pct_distance_median']:.2f} "
                 f"| {s['max_during_median_m']:.1f} | {100 * s['covered_2sigma']:.0f} % "
                 f"| {100 * s['nees_in_band']:.0f} % | {s['reacquisition_jump_median_m']:.1f} "
-                f"| {1e3 * s['cpu_s_per_flight_s']:.1f} ms |"
+                f"| {1e3 * s['cpu_s_per_flight_s']:.1f} ms | {_to_product(s)} |"
             )
         lines.append("")
     costs = cost_table(doc["runs"], spec["modes"])
