@@ -66,7 +66,6 @@ def measure(artifacts_dir: Path, seconds: float, repeats: int, modes: list[str],
             engine_share: bool = False) -> dict[str, Any]:  # fmt: skip
     from vdm_aero.geodesy import LocalFrame
     from vdm_aero.nav.filter import MODES, NavConfig, NavFilter, mode_spec
-    from vdm_aero.nav.ports_frontend import PortFrontEnd
     from vdm_aero.nav.replay import SensorLog
     from vdm_aero.nav.stream import LogRunner, NavStream
     from vdm_aero_cli.nav_bench import NavArtifacts, _flight, _nav
@@ -88,11 +87,7 @@ def measure(artifacts_dir: Path, seconds: float, repeats: int, modes: list[str],
         reads_ports = spec.ports_airdata or spec.force in ("deim", "deim-nn")
         times, shares, calls = [], [], []
         for _ in range(repeats):
-            fe = (
-                PortFrontEnd(nav.pressure_model, dict(nav.models), range_pa=500.0, noise_pa=0.2)
-                if reads_ports
-                else None
-            )
+            fe = nav.front_end(range_pa=500.0, noise_pa=0.2) if reads_ports else None
             runner = LogRunner(stream, {m: NavFilter(m, cfg, nav.derivatives)}, fe)
             if engine_share:
                 with engine_clock() as engine:

@@ -43,7 +43,7 @@ from vdm_aero.nav.driver import NavDriver
 from vdm_aero.nav.filter import AP_ATTITUDE_SIGMA_RAD, GNSS_TIMEOUT_S, SLOW_IMU_HZ, NavConfig, NavFilter
 from vdm_aero.nav.imu_increments import ImuIntegrator
 from vdm_aero.nav.models import NavModels
-from vdm_aero.nav.ports_frontend import PortFrame, PortFrontEnd
+from vdm_aero.nav.ports_frontend import PortFrame
 from vdm_aero.nav.state import IDX
 from vdm_aero.rotation import euler_from_quat
 
@@ -545,8 +545,7 @@ class CompanionService:
             self._print(f"vdm-aero serve: IMU at {imu_hz:.1f} Hz, too slow to integrate alone (< {SLOW_IMU_HZ:g} "
                         f"Hz): {fused}; expect a poorer solution than on a full-rate IMU")  # fmt: skip
         self.filter = NavFilter(self.cfg.mode, cfg, m.derivatives)
-        fe = PortFrontEnd(m.pressure_model, dict(m.models), range_pa=self.cfg.ports.range_pa,
-                          noise_pa=self.cfg.ports.noise_pa)  # fmt: skip
+        fe = m.front_end(range_pa=self.cfg.ports.range_pa, noise_pa=self.cfg.ports.noise_pa)
         self.driver = NavDriver({self.cfg.mode: self.filter}, fe)
         self._print(f"vdm-aero serve: origin {fix.lat_deg:.7f}, {fix.lon_deg:.7f}, {fix.alt_m:.1f} m")
 

@@ -483,3 +483,40 @@ def test_in_an_outage_the_pose_is_cloned_for_the_free_ins_and_a_wind_event_ancho
     f._last_gnss_s = f.t_s  # GNSS is back: no free INS to run, no clone to keep
     fly(40.0, 40.2)
     assert f.engine.clone_keys == ()
+
+
+def test_outside_the_calibrated_alpha_the_ports_airspeed_judges_nothing() -> None:
+    """With the ports' airspeed calibrated in flight (vdm_aero.nav.port_speed_calibration) the pitot less the
+    ports is flat in α over the α the calibration flight reached (−2…7° on the harsh fleet's airframe 0); beyond
+    it, in a pull-up to 13°, the ports read 4–5 m/s low (manoeuvring seeds 0 and 16), which a line learnt on
+    calibrated airspeeds cannot know. Judged there, the pair excluded a healthy source; held there, nothing is,
+    and a pitot that under-reads back in cruise is still caught."""
+
+    def ports_low(alpha_deg: float) -> float:  # the design model beyond the calibration
+        return 0.8 * max(alpha_deg - 7.0, 0.0)
+
+    def pull_ups(t: float) -> float:  # manoeuvres over −2…7°, and at 300 s the first pull-up, to 13° for 2 s
+        return 13.0 if 300.0 <= t < 302.0 else 2.5 + 4.5 * math.sin(t / 7.0)
+
+    def fly(fdi: AirDataFdi, rng: np.random.Generator, t0: float, t1: float, *, held: bool,
+            under_read_m_s: float = 0.0) -> list[tuple[str, str]]:  # fmt: skip
+        out = []
+        for k in range(round((t1 - t0) * RATE_HZ)):
+            t = t0 + k / RATE_HZ
+            a = pull_ups(t) + 0.3 * rng.standard_normal()
+            d = 0.3 + ports_low(a) - under_read_m_s + 0.3 * rng.standard_normal()
+            fdi.observe_pair(t, d, 1.3, 14.0, math.radians(a), judge=not (held and a > 7.0))
+            # the state nearer the pitot (fused with the INS); the ports off it in the pull-up
+            for s, v in {"pitot": 0.3 + 0.5 * under_read_m_s, "ports": 0.3 + ports_low(a), "force": 0.2}.items():
+                e = fdi.observe(s, t, v, 1)
+                if e is not None:
+                    out.append((e.source, e.what))
+        return out
+
+    judged = AirDataFdi()
+    assert ("ports", "excluded") in fly(judged, np.random.default_rng(13), 0.0, 400.0, held=False)
+    fdi = AirDataFdi()
+    rng = np.random.default_rng(13)
+    assert fly(fdi, rng, 0.0, 400.0, held=True) == []
+    ev = fly(fdi, rng, 400.0, 430.0, held=True, under_read_m_s=2.0)  # in cruise, inside the calibration
+    assert ev[:1] == [("pitot", "excluded")]

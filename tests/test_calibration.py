@@ -23,6 +23,7 @@ from vdm_aero.errors import UserInputError
 from vdm_aero.flightlog import FlightLogError, load_sensor_log, load_truth
 from vdm_aero.model import AeroModel
 from vdm_aero.nav.design_fit import DesignFlightData, PortPressureModel
+from vdm_aero.nav.models import NavModels
 from vdm_aero.vehicle import load_vehicle
 from vdm_aero_cli.calibration_study import l2_errors
 
@@ -80,10 +81,12 @@ def test_the_reality_gap_is_real(study: dict[str, Path], pressure: PortPressureM
     assert built[3] > 3.0 * designed[3], ("Croll", built[3], designed[3])
 
 
-def _calibrate(flight: Path, model: Path, data: Path, out: Path) -> subprocess.CompletedProcess[str]:
+def _calibrate(flight: Path, model: Path, data: Path, out: Path, *, as_json: bool = True
+               ) -> subprocess.CompletedProcess[str]:  # fmt: skip
     return subprocess.run(
         [sys.executable, "-m", "vdm_aero_cli.main", "calibrate", "--flight", str(flight), "--model", str(model),
-         "--design-data", str(data), "--vehicle", "uav-2m", "--out", str(out), "--max-epochs", "300", "--json"],
+         "--design-data", str(data), "--vehicle", "uav-2m", "--out", str(out), "--max-epochs", "300"]
+        + (["--json"] if as_json else []),
         capture_output=True, text=True, check=False,
     )  # fmt: skip
 
@@ -92,8 +95,9 @@ def _calibrate(flight: Path, model: Path, data: Path, out: Path) -> subprocess.C
 def calibrated(study: dict[str, Path]) -> Path:
     """``vdm-aero calibrate`` on the calibration flight's log directory."""
     out = study["root"] / "calibrated"
-    r = _calibrate(study["calib"], study["model"], study["data"], out)
+    r = _calibrate(study["calib"], study["model"], study["data"], out, as_json=False)
     assert r.returncode == 0, r.stderr
+    assert "ports' airspeed against the pitot: " in r.stdout and " m/s rms, table over α " in r.stdout, r.stdout
     return out
 
 
@@ -113,6 +117,23 @@ def test_calibration_flight_beats_design_deim(study: dict[str, Path], calibrated
     # and the net learnt something that holds on calibration blocks it did not train on
     m = cal.meta["calibration"]
     assert m["val_mse"] < 0.2 * m["val_mse_deim_only"]
+
+
+def test_the_ports_airspeed_is_calibrated_against_the_pitot(study: dict[str, Path], calibrated: Path,
+                                                              pressure: PortPressureModel) -> None:  # fmt: skip
+    """The calibration flight also fits the ports' airspeed table; on the test flight (another route, wind and
+    turbulence) it brings the as-built ports' airspeed nearer the truth."""
+    cal = NavModels.from_model(study["data"], calibrated).port_speed
+    assert cal is not None and cal.samples > 500 and cal.rms_after_m_s < cal.rms_before_m_s
+    data = form_targets(load_sensor_log(study["test"]), load_vehicle("uav-2m"), AeroModel.load(study["model"]),
+                        pressure, SETTINGS)  # fmt: skip
+    truth = load_truth(study["test"])
+    v_true = truth["airspeed_m_s"][np.searchsorted(truth["t_s"], data.t_s)]
+    ok = np.isfinite(data.ports_airspeed_m_s)
+    v, a = data.ports_airspeed_m_s[ok], data.ports_alpha_rad[ok]
+    before = np.sqrt(np.mean((v - v_true[ok]) ** 2))
+    after = np.sqrt(np.mean((np.array([cal.correct(x, y) for x, y in zip(v, a, strict=True)]) - v_true[ok]) ** 2))
+    assert after < 0.7 * before, (after, before)
 
 
 def test_nuisance_estimates_stay_physical(study: dict[str, Path], pressure: PortPressureModel) -> None:
@@ -197,6 +218,15 @@ def test_calibration_from_a_mock_tlog_trains_the_same_correction(
                                       loop_rate_hz=LOOP_RATE_HZ))  # fmt: skip
     r = _calibrate(tlog, study["model"], study["data"], tmp_path / "cal-tlog")
     assert r.returncode == 0, r.stderr
+    import json
+
+    # the ports' airspeed table from the tlog's named values is the log directory's
+    tab_t, tab_d = json.loads(r.stdout)["port_speed"], AeroModel.load(calibrated).meta["calibration"]["port_speed"]
+    assert tab_t["samples"] > 500
+    for a_deg in (0.0, 2.0, 4.0):
+        r_t = np.interp(a_deg, tab_t["alpha_knots_deg"], tab_t["ratio"])
+        r_d = np.interp(a_deg, tab_d["alpha_knots_deg"], tab_d["ratio"])
+        assert r_t == pytest.approx(r_d, abs=0.02), (a_deg, r_t, r_d)
     from_tlog, from_dir = AeroModel.load(tmp_path / "cal-tlog"), AeroModel.load(calibrated)
     meta = from_tlog.meta["calibration"]
     assert meta["flight"]["path"] == str(tlog) and meta["flight"]["samples"] > 500

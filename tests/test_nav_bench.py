@@ -580,6 +580,10 @@ def test_an_alarm_rate_interval_is_garwoods() -> None:
     # one over it
     assert "do not resolve it" in nav_bench.resolved([10.0 * r for r in nav_bench.rate_interval(0, 26.5)], 1.0)
     assert "lies above 1" in nav_bench.resolved([10.0 * r for r in nav_bench.rate_interval(4, 10.7)], 1.0)
+    # and what shows it: the table's 3.689 events over 0.1 per hour; after that many hours the interval clears it
+    need = nav_bench.hours_to_show(0, 0.1)
+    assert need == pytest.approx(36.89, rel=1e-3)
+    assert "lies below 1" in nav_bench.resolved([10.0 * r for r in nav_bench.rate_interval(0, 1.01 * need)], 1.0)
 
 
 def test_the_bars_say_whether_the_seeds_resolve_them() -> None:

@@ -25,6 +25,11 @@ is discussed in docs/aero-model.md: the thrust factors only through throttle cha
 aerodynamic states (the calibration scenario's throttle steps), the accelerometer bias through the
 1/q̄ dependence of its coefficient (speed sweeps).
 
+**The ports' airspeed against the pitot.** The same flight also calibrates the FADS solve's airspeed: the
+ratio V_pitot / V_ports as a table in the ports' α (:mod:`vdm_aero.nav.port_speed_calibration`), written into
+the model's ``calibration.port_speed``; the navigation's port front end applies it at run time. Cp keeps the
+solve's own q̄ (above), so the net's inputs do not depend on it.
+
 The correction net is then trained on (ports → target − DEIM) with the same recipe and ONNX export as
 ``vdm-aero train`` (:mod:`vdm_aero.train_correction`, imported only when training).
 """
@@ -41,10 +46,11 @@ import numpy as np
 
 from vdm_aero._typing import COEFF_NAMES, F64Array
 from vdm_aero.atmosphere import density_kg_m3, outside_air_temperature_c
-from vdm_aero.errors import UserInputError
+from vdm_aero.errors import ModelError, UserInputError
 from vdm_aero.flightlog import SensorLog
 from vdm_aero.model import AeroModel, load_diagnostics, read_model_yaml, sha256_file, write_model
 from vdm_aero.nav.design_fit import DesignFlightData, PortPressureModel
+from vdm_aero.nav.port_speed_calibration import PortSpeedCalibration
 from vdm_aero.nav.ports_frontend import PortFrontEnd
 from vdm_aero.vehicle import VehicleDescription
 
@@ -110,6 +116,8 @@ class CalibrationData:
     thrust_terms: F64Array  # (K, 2): the two nominal thrust terms as CX contributions
     torque_term: F64Array  # (K,): the nominal propeller torque as a Croll contribution
     mass_term: F64Array  # (K,): m/(q̄S): a unit accelerometer bias as a force coefficient
+    ports_airspeed_m_s: F64Array  # (K,): the ports' air-data solve, uncalibrated (the airspeed table's input)
+    ports_alpha_rad: F64Array  # (K,): its α
 
     def __len__(self) -> int:
         return len(self.t_s)
@@ -136,7 +144,7 @@ def _hold(t: F64Array, y: F64Array, t_out: F64Array) -> F64Array:
     return np.asarray(y[i])
 
 
-def ports_dynamic_pressure(
+def ports_air_data(
     pressure_model: PortPressureModel,
     dp_pa: F64Array,
     rho_kg_m3: F64Array,
@@ -144,14 +152,15 @@ def ports_dynamic_pressure(
     controls_rad: F64Array,
     noise_pa: float,
 ) -> F64Array:
-    """q̄ [Pa] of the ports' air-data solve at each sample (K,), NaN where it has none: the same solve, warm
-    start and limits as the run time's :class:`PortFrontEnd`."""
+    """The ports' air-data solve at each sample, (K, 4): V [m/s], α, β [rad] and q̄ [Pa], NaN where it has
+    none: the same solve, warm start and limits as the run time's :class:`PortFrontEnd` (uncalibrated: this is
+    what the airspeed table is fitted to)."""
     fe = PortFrontEnd(pressure_model, {}, range_pa=math.inf, noise_pa=noise_pa)
-    out = np.full(len(dp_pa), math.nan)
+    out = np.full((len(dp_pa), 4), math.nan)
     for i in range(len(dp_pa)):
         solved = fe.air_data(dp_pa[i], float(rho_kg_m3[i]), omega_b[i], controls_rad[i])
         if solved is not None:
-            out[i] = solved[2]
+            out[i, :3], out[i, 3] = solved[0], solved[2]
     return out
 
 
@@ -193,12 +202,13 @@ def form_targets(
     pwm = _hold(log["servo_t_s"], log["servo_pwm_us"], t)
     *surfaces, throttle = (np.asarray(v, dtype=np.float64) for v in vehicle.servos.deflections_rad(pwm))
     controls = np.stack(surfaces, axis=1)
-    q_ports = ports_dynamic_pressure(pressure_model, dp, rho, omega, controls, st.port_noise_pa)
+    air = ports_air_data(pressure_model, dp, rho, omega, controls, st.port_noise_pa)
+    q_ports = air[:, 3]
     keep = (qbar > MIN_QBAR_PA) & (q_ports > MIN_QBAR_PA)
     if int(keep.sum()) < 10:
         raise UserInputError(f"{where}: fewer than 10 samples with the pitot and the ports' air data above "
                              f"{MIN_QBAR_PA:g} Pa: nothing to calibrate on")  # fmt: skip
-    t, dp, qbar, q_ports, rho, throttle = t[keep], dp[keep], qbar[keep], q_ports[keep], rho[keep], throttle[keep]
+    t, dp, qbar, q_ports, rho, throttle, air = (x[keep] for x in (t, dp, qbar, q_ports, rho, throttle, air))
     f_b, omega, omega_dot = f_b[keep], omega[keep], omega_dot[keep]
     v_air = np.sqrt(2.0 * qbar / rho)
 
@@ -233,6 +243,8 @@ def form_targets(
         thrust_terms=thrust_terms,
         torque_term=np.asarray(torque_term),
         mass_term=m / qs,
+        ports_airspeed_m_s=air[:, 0],
+        ports_alpha_rad=air[:, 1],
     )
 
 
@@ -359,6 +371,10 @@ def calibrate_model(
     vehicle.check_reference(model.reference)
     pressure = PortPressureModel.fit(DesignFlightData.load(design_data, model.port_names))
     data = form_targets(log, vehicle, model, pressure, settings)
+    try:
+        port_speed = PortSpeedCalibration.fit(data.ports_alpha_rad, data.ports_airspeed_m_s, data.airspeed_m_s)
+    except (ValueError, ModelError) as e:
+        raise UserInputError(f"{log.path}: the ports' airspeed against the pitot: {e}") from None
     fit = estimate_nuisance(data, model)
     y = fit.targets(data)
     resid = y - model.predict_batch(data.cp, linear_only=True)
@@ -396,6 +412,7 @@ def calibrate_model(
             "design_data": str(design_data),
         },
         "nuisance": fit.to_dict(),
+        "port_speed": port_speed.to_dict(),
         "grid": grid,
         "seed": int(seed),
         "selected": {"hidden_layers": best.config.hidden_layers, "width": best.config.width},

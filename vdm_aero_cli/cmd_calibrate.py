@@ -134,6 +134,9 @@ def run_calibrate(args: argparse.Namespace) -> int:
           + ", ".join(f"{v:+.3f}" for v in nu["accel_bias_b_m_s2"]) + " m/s²")  # fmt: skip
     print(f"  net {summary['selected']}, validation MSE {summary['val_mse']:.3g} (DEIM alone "
           f"{summary['val_mse_deim_only']:.3g})")  # fmt: skip
+    ps = summary["port_speed"]
+    print(f"  ports' airspeed against the pitot: {ps['rms_before_m_s']:.2f} → {ps['rms_after_m_s']:.2f} m/s rms, "
+          f"table over α {ps['alpha_knots_deg'][0]:g}…{ps['alpha_knots_deg'][-1]:g}°")  # fmt: skip
     return 0
 
 

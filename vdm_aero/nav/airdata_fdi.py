@@ -30,6 +30,10 @@ constant of :data:`TAU_S`; a healthy, consistent source stays near 1.
   least-squares solve over twelve ports whose own residuals and per-port health the front end checks, the
   pitot has no check of its own. It is one-sided because the pitot's failures read low; the healthy
   disagreement's excursions in manoeuvres go both ways (docs/navigation.md has the figures).
+* **Where the ports' airspeed is a guess**: with the ports' airspeed calibrated in flight against the pitot
+  (:mod:`vdm_aero.nav.port_speed_calibration`) the pair's healthy difference is nearly flat, but only over the
+  α the calibration flight reached; beyond it (a pull-up past that α) the ports' airspeed is the design model's,
+  off by metres per second, and neither the pair's level nor the under-read test's sum moves there (``judge``).
 * **Isolate**: one source at a time is excluded (never fused again until re-admitted); the others keep the
   state honest, and its innovations are still computed against that state.
 * **Re-admit**: an excluded source whose smoothed NIS/dim stays under :data:`READMIT` for
@@ -41,8 +45,9 @@ see a pitot under-read smaller than the healthy pair's own disagreement (~1 m/s)
 airspeed, see a fault that grows slower than the state follows it (a slowly icing pitot pulls a live wind
 with it). Nor tell a pitot that starts to read low from a change of the flight the line in α does not
 explain: a payload dropped (less throttle, another pressure pattern at the same α) still excluded a healthy
-pitot on 1 of 20 flights, and speed changes in manoeuvring flight on 3 of 20 (docs/navigation.md, "The
-scenarios the 20-seed runs had left out").
+pitot on 1 of 20 flights (docs/navigation.md, "The scenarios the 20-seed runs had left out"). Manoeuvring flight
+did on 3 of 20 until the ports' airspeed was calibrated in flight, and on none of 40 since ("The ports' airspeed
+calibrated in flight").
 """
 
 from __future__ import annotations
@@ -182,9 +187,10 @@ class PitotUnderRead:
         return self.bias_at(self.alpha_rad)
 
     def observe(self, t_s: float, difference_m_s: float, *, alpha_rad: float = math.nan,
-                learn: bool = True) -> None:  # fmt: skip
+                learn: bool = True, judge: bool = True) -> None:  # fmt: skip
         """The pitot's airspeed less the ports' [m/s] at ``t_s``, with the ports' ``alpha_rad`` (NaN: as
-        before); ``learn``: both are fused, so a healthy difference may move the line."""
+        before); ``learn``: both are fused, so a healthy difference may move the line; ``judge``: the ports'
+        airspeed is calibrated at this α, so an under-read may add to the sum (else the sum is held)."""
         if not math.isfinite(difference_m_s):
             return
         if math.isfinite(alpha_rad):
@@ -204,7 +210,8 @@ class PitotUnderRead:
             self.cusum_m = 0.0  # the line is still a short average
         else:
             # capped: once the pitot reads true again the alarm clears within ~h/k, not after as long as it lasted
-            self.cusum_m = min(max(0.0, self.cusum_m + (-self.residual_m_s - self.k_m_s) * dt), 2.0 * self.h_m)
+            grown = min(max(0.0, self.cusum_m + (-self.residual_m_s - self.k_m_s) * dt), 2.0 * self.h_m)
+            self.cusum_m = grown if judge else min(grown, self.cusum_m)
         if learn and self.cusum_m < 0.25 * self.h_m:  # a growing under-read must not teach the line
             b = math.exp(-dt / min(self.bias_tau_s, max(age, dt)))  # a running mean until the time constant
             self._ata = b * self._ata + (1.0 - b) * np.outer(x, x)
@@ -260,16 +267,24 @@ class AirDataFdi:
 
     def observe_pair(self, t_s: float, difference_m_s: float, sigma_m_s: float,
                      airspeed_m_s: float | None = None, alpha_rad: float = math.nan,
-                     port_set: bytes | None = None) -> None:  # fmt: skip
+                     port_set: bytes | None = None, *, judge: bool = True) -> None:  # fmt: skip
         """The pitot's airspeed less the ports' [m/s] at ``t_s``, with the σ of that difference; with the
         pitot's ``airspeed_m_s`` in its useful range, also the under-read test (at the ports' ``alpha_rad``),
         whose line belongs to the ports' solve from ``port_set`` (any hashable mark of the usable ports). The
         pair's level judges the difference less the under-read test's healthy line at this α: in a slow pull-up
         the ports' airspeed reads 2–6 m/s under a healthy pitot on the harsh fleet, the line knows it, and the
-        raw difference over σ took it for a fault of one of the two (docs/navigation.md)."""
+        raw difference over σ took it for a fault of one of the two (docs/navigation.md). ``judge``: False where
+        the ports' α lies outside the α their airspeed was calibrated over in flight
+        (:mod:`vdm_aero.nav.port_speed_calibration`): the pair's level and the under-read test's sum are then
+        held (the test still learns its line), since there the ports' airspeed is the design model's guess
+        with the table's edge value, not a measurement to judge the pitot by (on the harsh fleet 4–5 m/s low
+        at α 13° in a pull-up, where the calibration flight reached 7°)."""
         ur = self.under_read
-        line = ur.bias_at(alpha_rad if math.isfinite(alpha_rad) else ur.alpha_rad)
-        self._smooth(self.pair, t_s, ((difference_m_s - line) / sigma_m_s) ** 2)
+        if judge:
+            line = ur.bias_at(alpha_rad if math.isfinite(alpha_rad) else ur.alpha_rad)
+            self._smooth(self.pair, t_s, ((difference_m_s - line) / sigma_m_s) ** 2)
+        else:  # the pair is still known (both airspeeds are there), its level is held
+            self.pair.last_t_s = t_s
         if airspeed_m_s is None or airspeed_m_s < DRIFT_MIN_AIRSPEED_M_S:
             return
         both = self.fused("pitot") and self.fused("ports")
@@ -289,7 +304,7 @@ class AirDataFdi:
                     self._line_port_set, self._port_set_since_s = port_set, None
         else:
             self._port_set_since_s = None
-        self.under_read.observe(t_s, difference_m_s, alpha_rad=alpha_rad, learn=both)
+        self.under_read.observe(t_s, difference_m_s, alpha_rad=alpha_rad, learn=both, judge=judge)
 
     def _pair_known(self, t_s: float) -> bool:
         both = self.fused("pitot") and self.fused("ports")

@@ -476,7 +476,7 @@ class NavFilter:
         if not self.spec.wind_gradient:
             self.process.freeze_wind_gradient()
         # (t [s], V [m/s], σ_V [m/s], α [rad], the usable ports' mask as bytes)
-        self._ports_speed: tuple[float, float, float, float, bytes] | None = None
+        self._ports_speed: tuple[float, float, float, float, bytes, bool] | None = None
         self.fallback = False
         self.port_health = (0, 0)
         self.counts: dict[str, int] = {}
@@ -1250,9 +1250,9 @@ class NavFilter:
         tas = math.sqrt(2.0 * max(dp_pa, 0.0) / self.inputs.rho_kg_m3)
         meas = Measurement(t_s, np.array([tas]), PitotAirspeed(self.config.pitot_sigma_m_s))
         if self.fdi is not None and self._ports_speed is not None and t_s - self._ports_speed[0] <= PAIR_MAX_AGE_S:
-            _, v_ports, sig_ports, alpha_ports, port_set = self._ports_speed  # the two airspeeds, no state between
+            _, v_ports, sig_ports, alpha_ports, port_set, calibrated = self._ports_speed  # no state between the two
             self.fdi.observe_pair(t_s, tas - v_ports, math.hypot(self.config.pitot_sigma_m_s, sig_ports), tas,
-                                  alpha_ports, port_set)  # fmt: skip
+                                  alpha_ports, port_set, judge=calibrated)  # fmt: skip
         # below the pitot's useful range (and on the ground) it is never fused, but a pitot reading near zero in
         # flight is what a blocked one does: the FDI judges it
         self._fuse_source("pitot", meas, fuse=tas >= 8.0)
@@ -1292,7 +1292,8 @@ class NavFilter:
             assert frame.airdata_cov is not None
             cov = frame.airdata_cov + np.diag(np.square(c.airdata_sigma_floor))
             self._ports_speed = (frame.t_s, float(frame.airdata[0]), math.sqrt(float(cov[0, 0])),
-                                 float(frame.airdata[1]), np.asarray(frame.ok, dtype=bool).tobytes())  # fmt: skip
+                                 float(frame.airdata[1]), np.asarray(frame.ok, dtype=bool).tobytes(),
+                                 frame.within_calibration)  # fmt: skip
             self._fuse_source("ports", Measurement(frame.t_s, frame.airdata, PortAirData(cov)), adaptive=True)
         self._watch_wind(frame)
         force = self.spec.force_model(frame.coeffs)

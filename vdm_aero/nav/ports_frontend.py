@@ -32,6 +32,7 @@ from vdm_aero._typing import BoolArray, F64Array
 from vdm_aero.model import AeroModel
 from vdm_aero.nav.design_fit import PortPressureModel
 from vdm_aero.nav.imu_increments import TYPICAL_GAIN, gap_limit_s
+from vdm_aero.nav.port_speed_calibration import PortSpeedCalibration
 
 __all__ = ["PortFrame", "PortFrontEnd"]
 
@@ -201,6 +202,9 @@ class PortFrame:
     airdata_cov: F64Array | None
     qbar_pa: float
     coeffs: dict[str, F64Array] = field(default_factory=dict)
+    # the air data's α inside the α the ports' airspeed table was calibrated over (always, without a table: the
+    # design model is all there is); outside it the table is held at its edge, and the airspeed is a guess
+    within_calibration: bool = True
 
     @property
     def n_ok(self) -> int:
@@ -209,7 +213,8 @@ class PortFrame:
 
 class PortFrontEnd:
     """Health checks, the FADS solve and the aero models (``models``: name → :class:`AeroModel`, all on
-    the same ports in the same order)."""
+    the same ports in the same order); with ``speed_calibration``, the solve's airspeed calibrated in flight
+    (:mod:`vdm_aero.nav.port_speed_calibration`)."""
 
     def __init__(
         self,
@@ -219,9 +224,11 @@ class PortFrontEnd:
         range_pa: float,
         noise_pa: float,
         stuck_frames: int = 10,
+        speed_calibration: PortSpeedCalibration | None = None,
     ) -> None:
         self.pressure_model = pressure_model
         self.models = models
+        self.speed_calibration = speed_calibration
         self.range_pa = range_pa
         self.noise_pa = noise_pa
         self.stuck_frames = stuck_frames
@@ -278,7 +285,8 @@ class PortFrontEnd:
     ) -> tuple[F64Array, F64Array, float] | None:
         """The FADS solve of one frame (NaN marks an unusable port), warm-started from the last frame's:
         ((V [m/s], α, β [rad]), its covariance (3, 3), q̄ [Pa]), or None with no air data (too few ports, no
-        convergence, or q̄ below :data:`MIN_QBAR_PA`). Calibration normalises Cp with this same q̄."""
+        convergence, or q̄ below :data:`MIN_QBAR_PA`). Calibration normalises Cp with this same q̄, the solve's
+        own; V is the calibrated airspeed when the front end has a speed calibration."""
         sol = self.pressure_model.solve(dp_pa, rho_kg_m3, omega_b, controls_rad, noise_pa=self.noise_pa,
                                         start=self._start)  # fmt: skip
         if sol is None and self._start is not None:  # a bad warm start (after a gap): try cold
@@ -292,6 +300,10 @@ class PortFrontEnd:
             self._start = None
             return None
         self._start = (qbar, float(vab[1]), float(vab[2]))
+        if self.speed_calibration is not None:
+            r = self.speed_calibration.ratio(float(vab[1]))
+            vab = np.array([r * float(vab[0]), vab[1], vab[2]])
+            cov = cov * np.array([r, 1.0, 1.0])[:, None] * np.array([r, 1.0, 1.0])[None, :]
         return vab, cov, qbar
 
     def process(
@@ -316,4 +328,5 @@ class PortFrontEnd:
         vab, cov, qbar = solved
         cp = dp / qbar
         coeffs = {name: m.predict(cp) for name, m in self.models.items()}
-        return PortFrame(t_s, ok, vab, cov * (len(ok) / max(int(ok.sum()), 1)), qbar, coeffs)
+        inside = self.speed_calibration is None or self.speed_calibration.covers(float(vab[1]))
+        return PortFrame(t_s, ok, vab, cov * (len(ok) / max(int(ok.sum()), 1)), qbar, coeffs, inside)

@@ -26,7 +26,6 @@ from vdm_aero.flightlog import SensorLog
 from vdm_aero.geodesy import LocalFrame
 from vdm_aero.nav.filter import AP_ATTITUDE_SIGMA_RAD, MODES, SLOW_IMU_HZ, NavConfig, NavFilter, mode_spec, reads_ports
 from vdm_aero.nav.models import NavModels
-from vdm_aero.nav.ports_frontend import PortFrontEnd
 from vdm_aero.nav.stream import LogRunner, NavStream, SolutionRecorder
 from vdm_aero.rotation import euler_from_quat
 from vdm_aero.vehicle import VehicleDescription
@@ -151,7 +150,7 @@ def replay_log(
     stream = NavStream.from_log(log, vehicle, frame, filter_rate_hz=rate, gnss_latency_s=cfg.gnss_latency_s)
     fe = None
     if models is not None and any(m in _PORT_MODES for m in modes):
-        fe = PortFrontEnd(models.pressure_model, dict(models.models), range_pa=PORT_RANGE_PA, noise_pa=PORT_NOISE_PA)
+        fe = models.front_end(range_pa=PORT_RANGE_PA, noise_pa=PORT_NOISE_PA)
     derivatives = models.derivatives if models is not None else None
     filters = {m: NavFilter(m, cfg, derivatives) for m in modes}
     runner = LogRunner(stream, filters, fe)
