@@ -3,12 +3,12 @@
 The FADS solve (:class:`~vdm_aero.nav.design_fit.PortPressureModel`) inverts a port model fitted to the design
 data set, the user's simulation of the nominal airframe. The built aircraft is not that airframe: its ports sit
 a little off their drawn positions, its skin and its propwash differ. On the harsh world's four as-built airframes
-the ports' airspeed was 1.4–1.9 m/s high on two, up to 2.5 m/s low at α above 3° on a third, and the error was
-the same, within ~0.3 m/s at each α, on every flight of one airframe (docs/navigation.md, "The ports' airspeed
-calibrated in flight"). A systematic error of one airframe is what a flight calibration removes: flush air-data
-systems are calibrated against a reference in flight (Whitmore, Moes & Larson, NASA TM-104241, 1992; Whitmore,
-Davis & Fife, NASA TM-104314, 1995), as a static source's position error is tabulated against α or the lift
-coefficient (FAA AC 23-8C, 23.1323; Gracey, NASA RP-1046, 1980, ch. 6).
+the ports' airspeed read up to 2.3 m/s high (one airframe, at every α) and up to 2.7 m/s low (another, at α above
+2°), and the error repeated from flight to flight: in 1° bands of α the flights' medians lay within 0.1–1.3 m/s
+of each other, median 0.5 (docs/navigation.md, "The ports' airspeed calibrated in flight"). A systematic error
+of one airframe is what a flight calibration removes: flush air-data systems are calibrated against a reference
+in flight (Whitmore et al., NASA TM-104241; Whitmore, Davis & Fife, NASA Dryden, 1995), as a static source's
+position error is tabulated against α or the lift coefficient (Gracey, NASA RP-1046, 1980; FAA AC 23-8C).
 
 The reference here is the pitot of the calibration flight (the same flight the correction net is trained on,
 :func:`vdm_aero.calibrate.calibrate_model`): the ratio V_pitot / V_ports is fitted as a piecewise-linear
