@@ -475,7 +475,7 @@ class NavFilter:
             self.process.wind_height_rate_scale = WIND_PSCALE
         if not self.spec.wind_gradient:
             self.process.freeze_wind_gradient()
-        # (t [s], V [m/s], σ_V [m/s], α [rad], the usable ports' mask as bytes)
+        # (t [s], V [m/s], σ_V [m/s], α [rad], the usable ports' mask as bytes, α inside the airspeed table)
         self._ports_speed: tuple[float, float, float, float, bytes, bool] | None = None
         self.fallback = False
         self.port_health = (0, 0)

@@ -63,7 +63,7 @@ class NavModels:
 
 def _port_speed(model_dir: Path | None) -> PortSpeedCalibration | None:
     """The airspeed table a flight calibration wrote into ``model_dir``'s model.yaml (models calibrated before
-    2026-12-01, and those trained on the design data alone, have none)."""
+    2026-11-30, and those trained on the design data alone, have none)."""
     if model_dir is None:
         return None
     cal = read_model_yaml(model_dir).get("calibration")

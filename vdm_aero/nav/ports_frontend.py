@@ -302,8 +302,8 @@ class PortFrontEnd:
         self._start = (qbar, float(vab[1]), float(vab[2]))
         if self.speed_calibration is not None:
             r = self.speed_calibration.ratio(float(vab[1]))
-            vab = np.array([r * float(vab[0]), vab[1], vab[2]])
-            cov = cov * np.array([r, 1.0, 1.0])[:, None] * np.array([r, 1.0, 1.0])[None, :]
+            scale = np.array([r, 1.0, 1.0])
+            vab, cov = vab * scale, cov * np.outer(scale, scale)
         return vab, cov, qbar
 
     def process(
