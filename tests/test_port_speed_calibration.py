@@ -136,12 +136,19 @@ def test_a_calibrated_model_carries_its_table_to_the_filters(design_deim12: dict
 def test_the_front_end_says_whether_the_alpha_lies_inside_the_calibration(design_deim12: dict[str, Path]) -> None:
     pm, dp = _design_frame(design_deim12["model"], design_deim12["data"])  # a frame at α 4°
 
-    def frame(cal: PortSpeedCalibration | None) -> bool:
+    def frame(cal: PortSpeedCalibration | None, ok: np.ndarray | None = None) -> bool:
         fe = PortFrontEnd(pm, {}, range_pa=500.0, noise_pa=0.2, speed_calibration=cal)
-        f = fe.process(0.0, dp, 1.2, np.zeros(3), np.zeros(3))
+        f = fe.process(0.0, dp, 1.2, np.zeros(3), np.zeros(3), ok)
         assert f.airdata is not None
         return f.within_calibration
 
+    spanning = PortSpeedCalibration((math.radians(-2.0), math.radians(7.0)), (1.0, 1.1), 1000, 1.0, 0.5)
     assert frame(None)  # no table: the design model is all there is
-    assert frame(PortSpeedCalibration((math.radians(-2.0), math.radians(7.0)), (1.0, 1.1), 1000, 1.0, 0.5))
+    assert frame(spanning)
     assert not frame(PortSpeedCalibration((math.radians(5.0), math.radians(9.0)), (1.0, 1.1), 1000, 1.0, 0.5))
+    # the table was fitted on every port: with one left out (blocked, quiet) the solve's error is another one
+    subset = np.ones(len(dp), dtype=bool)
+    subset[0] = False
+    assert frame(spanning, np.ones(len(dp), dtype=bool))
+    assert not frame(spanning, subset)
+    assert frame(None, subset)

@@ -174,3 +174,29 @@ def test_a_lossy_links_holes_call_no_port_quiet_and_a_blocked_one_is_still_found
     slow = slice(None, None, round(RATE_HZ / 5.0))
     _, events = _run(t[slow], (blocked[slow], alpha[slow]))
     assert [(i, q) for _, i, q in events] == [(3, True)], events
+
+
+def test_a_pitch_down_into_a_learnt_band_calls_no_port_quiet() -> None:
+    """Port 0 barely feels α (Cp 0.9 throughout); every other port's dCp/dα is six times larger at 5° than at 1°, so
+    at 5° port 0's share of the common activity is ~1/36 of its cruise share, with nothing wrong. The aircraft
+    cruises at 1°, flies 30 s at 5° (too short to learn that band: no verdict there), and pitches back down
+    within 0.5 s, too briefly to count as a manoeuvre. The activities are 2-s means: a second after α is back,
+    they still hold the last band's flow, and judged against the cruise band's share port 0 was called quiet
+    (the benchmark's manoeuvring flights, three times in 5.6 h). Its band is now that of α's own 2-s mean, and
+    α must be in it too. A line blocked in cruise after the manoeuvre is still found."""
+    t = np.arange(0.0, 400.0, 1.0 / RATE_HZ)
+    lo, hi = math.radians(1.0), math.radians(5.0)
+    alpha_mean = lo + (hi - lo) * (np.clip((t - 300.0) / 0.5, 0.0, 1.0) - np.clip((t - 332.0) / 0.5, 0.0, 1.0))
+    for seed in (14, 16, 17):
+        rng = np.random.default_rng(seed)
+        slope = rng.choice([-1.0, 1.0], N) * rng.uniform(1.0, 2.0, N)  # dCp/dα at 1° [1/rad]
+        curve = 5.0 * slope / (hi - lo)  # six times the slope at 5°
+        shapes = {i: (float(rng.uniform(-1.0, 1.0)), float(slope[i] + curve[i] * (ALPHA0_RAD - lo)), float(curve[i]))
+                  for i in range(1, N)}  # fmt: skip
+        shapes[0] = (0.9, 0.0, 0.0)
+        flow = _flow(t, rng, alpha_mean_rad=alpha_mean, shapes=shapes)
+        _, events = _run(t, flow)
+        assert events == [], (seed, events)
+        _, events = _run(t, _block(t, flow, 5, 360.0, rng))
+        assert [(i, quiet) for _, i, quiet in events] == [(5, True)], (seed, events)
+        assert 360.0 < events[0][0] < 360.0 + 10.0

@@ -51,7 +51,11 @@ class QuietPorts:
 
     A port's share depends on the flow it sees, so it is learnt, and judged, per band of the air data's α
     (:data:`BAND_DEG`): a port near the zero of its Cp(α) breathes little in slow flight at high α and much in
-    cruise. A band first flown starts from the nearest learnt band's shares and gives no verdict on a port until
+    cruise. The α that picks the band is averaged like the activity (over :data:`ACTIVITY_TAU_S`), because the
+    activity is the flow of the last seconds, and a verdict also needs the instant α in that band: judged by the
+    instant α alone, a port that had breathed little in a band barely flown was called quiet a second after a
+    pitch-down into a learnt band, its activity still the last band's (manoeuvring, 3 healthy ports in 5.6 h,
+    2026-11-30). A band first flown starts from the nearest learnt band's shares and gives no verdict on a port until
     it has learnt that port there for :data:`BAND_LEARNT_S`. Nor is anything judged while α itself moves more
     than :data:`MANOEUVRE_RATIO` times its usual activity (learnt the same way): a pitch manoeuvre drives the ports
     most sensitive to α, and those least sensitive fall to a small share of the common activity with nothing
@@ -95,6 +99,7 @@ class QuietPorts:
         self._active_s = 0.0
         self._back_since = np.full(n_ports, math.nan)
         self._alpha_prev = math.nan
+        self._alpha_mean_rad = math.nan  # α averaged like the activity: the band the activity belongs to
         self._alpha_activity = math.nan
         self._log_alpha_activity = math.nan  # its usual level
 
@@ -120,6 +125,8 @@ class QuietPorts:
         dt = t_s - t_prev
         a = min(dt / self.ACTIVITY_TAU_S, 1.0)
         steady = self._alpha_steady(alpha_rad, dt, a)
+        am = self._alpha_mean_rad
+        self._alpha_mean_rad = alpha_rad if not math.isfinite(am) else am + a * (alpha_rad - am)
         d2 = (dp_pa - prev) ** 2
         fresh = np.isfinite(d2)
         act = self._activity
@@ -130,7 +137,7 @@ class QuietPorts:
         if not common > self.ACTIVE_NOISE_RATIO * self.noise_var_pa2 or not math.isfinite(alpha_rad):
             return  # calm flow (or none), or no air data: no port can be told from a blocked one
         self._active_s += dt
-        band = min(max(int((math.degrees(alpha_rad) - self.BAND_LO_DEG) // self.BAND_DEG), 0), self.N_BANDS - 1)
+        band = self._band(self._alpha_mean_rad)
         share = act / common
         ok_share = fresh & (share > 0.0)
         log_share = np.log(np.where(ok_share, share, 1.0))
@@ -148,7 +155,9 @@ class QuietPorts:
         learn &= rel > self.BACK_SHARE
         self._log_share[band] = np.where(learn, ls + min(dt / self.SHARE_TAU_S, 1.0) * (log_share - ls), ls)
         self._learnt_s[band] += np.where(learn, dt, 0.0)
-        judged = steady & (self._learnt_s[band] >= self.BAND_LEARNT_S)
+        # and α now in that band too: just after a pitch-up the others' swing fills the common activity at once
+        settled = steady and self._band(alpha_rad) == band
+        judged = settled & (self._learnt_s[band] >= self.BAND_LEARNT_S)
         newly = fresh & ~self.quiet & judged & (rel < self.QUIET_SHARE)
         self.quiet |= newly
         self._back_since[newly] = math.nan
@@ -159,6 +168,10 @@ class QuietPorts:
                 self._back_since[i] = t_s
             elif t_s - self._back_since[i] >= self.BACK_S:
                 self.quiet[i] = False
+
+    def _band(self, alpha_rad: float) -> int:
+        """The α band of ``alpha_rad`` (α outside the bands counts in the edge band)."""
+        return min(max(int((math.degrees(alpha_rad) - self.BAND_LO_DEG) // self.BAND_DEG), 0), self.N_BANDS - 1)
 
     def _alpha_steady(self, alpha_rad: float, dt: float, a: float) -> bool:
         """Update α's activity with this change; False while it is above :data:`MANOEUVRE_RATIO` times its
@@ -202,8 +215,8 @@ class PortFrame:
     airdata_cov: F64Array | None
     qbar_pa: float
     coeffs: dict[str, F64Array] = field(default_factory=dict)
-    # the air data's α inside the α the ports' airspeed table was calibrated over (always, without a table: the
-    # design model is all there is); outside it the table is held at its edge, and the airspeed is a guess
+    # the air data inside what the ports' airspeed table was calibrated on: its α range and every port (always,
+    # without a table: the design model is all there is); outside it the airspeed is a guess
     within_calibration: bool = True
 
     @property
@@ -328,5 +341,7 @@ class PortFrontEnd:
         vab, cov, qbar = solved
         cp = dp / qbar
         coeffs = {name: m.predict(cp) for name, m in self.models.items()}
-        inside = self.speed_calibration is None or self.speed_calibration.covers(float(vab[1]))
+        # the table was fitted on every port: a subset's solve has its own airspeed error, which it does not know
+        cal = self.speed_calibration
+        inside = cal is None or (bool(ok.all()) and cal.covers(float(vab[1])))
         return PortFrame(t_s, ok, vab, cov * (len(ok) / max(int(ok.sum()), 1)), qbar, coeffs, inside)
