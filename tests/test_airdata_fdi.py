@@ -180,6 +180,43 @@ def test_the_ins_window_is_a_free_ins_from_the_filters_own_pose_at_its_start() -
     assert tau == pytest.approx(10.0, abs=0.01)
     assert (vn, ve) == pytest.approx((25.0, 0.0), abs=1e-9)
     assert (pn, pe) == pytest.approx((365.0, 0.0), abs=1e-9)  # the trapezoid is exact for a constant acceleration
+    # what a heading error would turn: the velocity change over the window (5 m/s) and its integral (25 m)
+    assert d.ins_turned() is None  # no anchor yet
+    d.anchor()
+    assert d.ins_turned() == pytest.approx((5.0, 25.0), abs=1e-9)
+
+
+def test_the_free_ins_fix_moves_with_its_start_pose_as_its_clone_jacobian_says() -> None:
+    """The free INS starts from the filter's pose at the clone: p + v·τ + ∫Δv. Its fix is fused relative to that
+    clone with ``InsWindowFix.clone_jacobian``; with −I there (the clone's velocity error not carried over τ)
+    a survey's gust, seen as a wind change in a turn, had its position moved 320 m for a 32-m innovation
+    (survey seed 16, 2026-11-30). The Jacobian against the detector's own arithmetic, by finite differences."""
+    from vdm_aero.nav.airdata_fdi import WindChangeDetector
+    from vdm_aero.nav.measurements import InsWindowFix
+
+    def free_ins(delta: np.ndarray) -> tuple[np.ndarray, float]:
+        d = WindChangeDetector()
+        dt = 0.02
+        for k in range(1, 601):
+            t = k * dt
+            d.ins_step(t, 0.3 * math.cos(0.2 * t) * dt, -0.4 * dt, dt)  # a turn's changing acceleration
+            if k % 5 == 0:
+                p = np.array([100.0 + 20.0 * t, -3.0 * t]) + delta[:2]  # every pose shifted: the anchor's is
+                v = np.array([20.0, -3.0]) + delta[2:]
+                d.air(t, 20.0, 0.0, (float(p[0]), float(p[1])), (float(v[0]), float(v[1])))
+        fix = d.ins_window(12.0)
+        assert fix is not None
+        (pn, pe), (vn, ve), tau = fix
+        return np.array([pn, pe, vn, ve]), tau
+
+    base, tau = free_ins(np.zeros(4))
+    a = InsWindowFix.clone_jacobian(tau)
+    for i in range(4):
+        delta = np.zeros(4)
+        delta[i] = 0.5
+        moved, _ = free_ins(delta)
+        # the clone's estimate moved by δ: its error by −δ, the innovation (fix less the state) by A·(−δ)
+        np.testing.assert_allclose(moved - base, a @ -delta, atol=1e-9, err_msg=f"pose component {i}")
 
 
 def test_a_wind_step_is_told_from_a_gust_that_goes_back() -> None:
@@ -328,6 +365,71 @@ def test_a_speed_change_is_not_an_under_read_but_an_under_read_after_it_is() -> 
     assert alarms
 
 
+def test_a_payload_drop_moves_the_elevator_not_the_pitot_and_an_under_read_after_it_is_still_seen() -> None:
+    # a payload dropped moves the CG: the elevator trims ~0.02 rad further down at the same α, and the ports'
+    # airspeed moves with it (harsh fleet, 20 drops: −34 … +12 m/s per rad of elevator, the same on each
+    # airframe's flights; docs/navigation.md, "A payload drop moves the elevator, not α"). Before the drop
+    # turns vary the elevator at a given α (the pitch rate a banked turn needs), which is what the plane learns
+    # the slope from
+    from vdm_aero.nav.airdata_fdi import PitotUnderRead
+
+    rng = np.random.default_rng(21)
+    slope_a, slope_e = -30.0, -35.0  # [m/s per rad] of the pitot less the ports
+
+    def fly(m: PitotUnderRead, t0: float, t1: float, trim_rad: float, under_read_m_s: float = 0.0,
+            elevator: bool = True) -> float | None:  # fmt: skip
+        for t in np.arange(t0, t1, 1.0 / RATE_HZ):
+            turn = math.sin(2.0 * math.pi * t / 40.0)
+            a = math.radians(0.4 + 0.4 * turn + 0.3 * rng.standard_normal())
+            de = trim_rad - 0.5 * a - 0.02 * math.sin(2.0 * math.pi * t / 40.0 + 1.0)
+            d = 0.3 + slope_a * a + slope_e * de + 0.3 * rng.standard_normal() - under_read_m_s
+            m.observe(float(t), d, alpha_rad=a, elevator_rad=de if elevator else math.nan)
+            if m.alarm:
+                return float(t)
+        return None
+
+    m = PitotUnderRead()
+    assert fly(m, 0.0, 200.0, -0.02) is None
+    assert fly(m, 200.0, 320.0, -0.02 + 0.03) is None  # the drop: the ports read ~1 m/s higher, no alarm
+    assert m.bias_at(0.0, 0.03) - m.bias_at(0.0, 0.0) == pytest.approx(slope_e * 0.03, abs=0.3)
+    t = fly(m, 320.0, 350.0, -0.02 + 0.03, under_read_m_s=2.0)  # then the pitot ices
+    assert t is not None and t - 320.0 < 10.0
+    # the premise: the line in α alone takes the drop for a pitot reading low
+    line = PitotUnderRead()
+    assert fly(line, 0.0, 200.0, -0.02, elevator=False) is None
+    assert fly(line, 200.0, 320.0, -0.02 + 0.03, elevator=False) is not None
+
+
+def test_samples_not_judged_carry_nothing_into_the_next_that_are() -> None:
+    # in a slow pull-up past the α the ports' airspeed was calibrated over, the ports read ~2 m/s over a healthy
+    # pitot on the harsh fleet. The sum was held there, but the smoothed residual went on taking those samples:
+    # back inside the calibration it still held them, and the sum passed the threshold within a second
+    # (manoeuvring seed 13, 2026-11-30: a healthy pitot excluded). The same holds beyond the elevator the plane
+    # learnt over, whose spread it also says
+    from vdm_aero.nav.airdata_fdi import PitotUnderRead
+
+    rng = np.random.default_rng(23)
+    m = PitotUnderRead()
+    for t in np.arange(0.0, 300.0, 1.0 / RATE_HZ):  # cruise: the elevator ±2° about −2.5°
+        de = math.radians(-2.5 + 2.0 * math.sin(2.0 * math.pi * t / 40.0))
+        m.observe(float(t), 0.3 - 35.0 * de + 0.3 * rng.standard_normal(), alpha_rad=0.02, elevator_rad=de)
+    before = m.residual_m_s
+    # 5 s off the line by −3 m/s where nothing is judged (the line not learning them either, to isolate the sum)
+    for t in np.arange(300.0, 305.0, 1.0 / RATE_HZ):
+        m.observe(float(t), 0.3 - 35.0 * -0.04 - 3.0, alpha_rad=0.02, elevator_rad=-0.04, learn=False, judge=False)
+    assert m.residual_m_s == before and m.cusum_m == 0.0
+    for t in np.arange(305.0, 310.0, 1.0 / RATE_HZ):  # back, healthy: no alarm
+        m.observe(float(t), 0.3 - 35.0 * -0.04 + 0.3 * rng.standard_normal(), alpha_rad=0.02, elevator_rad=-0.04)
+        assert not m.alarm
+    # the elevator's learnt spread: cruise's ±2° about −2.5° (1σ 1.4°), three of its σ either side
+    assert m.covers(math.radians(-2.5)) and m.covers(math.radians(-6.0))
+    assert not m.covers(math.radians(-9.0)) and not m.covers(math.radians(4.0))
+    # and beyond it nothing is judged, though the caller says the α is calibrated
+    for t in np.arange(310.0, 315.0, 1.0 / RATE_HZ):
+        m.observe(float(t), 0.3 - 35.0 * -0.2 - 3.0, alpha_rad=0.02, elevator_rad=-0.2, learn=False)
+    assert m.cusum_m == 0.0
+
+
 def test_the_wind_change_threshold_rises_with_the_turbulence_measured_in_flight() -> None:
     from vdm_aero.nav.airdata_fdi import WIND_CHANGE_GUST_SIGMAS, WIND_CHANGE_M_S, wind_change_threshold_m_s
 
@@ -438,7 +540,7 @@ def test_a_pull_up_the_line_knows_is_no_fault_and_a_step_off_the_line_is() -> No
     assert ev[0][2] - 330.0 < 5.0
     # the premise: judged on the raw difference, the same pull-up excluded the healthy ports
     raw = AirDataFdi()
-    raw.under_read.bias_at = lambda alpha_rad: 0.0  # type: ignore[method-assign]
+    raw.under_read.bias_at = lambda alpha_rad, elevator_rad=math.nan: 0.0  # type: ignore[method-assign]
     assert fly(raw, 0.0, 300.0, legs) == []
     assert [(s, w) for s, w, _ in fly(raw, 300.0, 330.0, pull_up)][:1] == [("ports", "excluded")]
 

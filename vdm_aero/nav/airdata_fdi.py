@@ -21,8 +21,9 @@ constant of :data:`TAU_S`; a healthy, consistent source stays near 1.
   conservative) and needs ~4.5 m/s; a pitot icing over tens of seconds under-reads by only 0.3–5 m/s 10 s in.
   So the pair also runs a one-sided CUSUM (Page 1954; Basseville & Nikiforov 1993, §2.2) on the pitot's
   under-read against the ports, in m/s: its healthy difference (each airframe's pitot and ports see sideslip,
-  propwash and load differently: −1.5 … +0.7 m/s at cruise on the harsh fleet, and the ports' airspeed error
-  grows with α) learnt as a line in the ports' α over :data:`DRIFT_BIAS_TAU_S` while the pair agrees, the
+  propwash and load differently: −1.5 … +0.7 m/s at cruise on the harsh fleet, the ports' airspeed error
+  grows with α and moves with the elevator) learnt as a plane in the ports' α and the elevator's deflection over
+  :data:`DRIFT_BIAS_TAU_S` while the pair agrees, the
   residual smoothed over :data:`TAU_S`, the excess over :data:`DRIFT_K_M_S`
   accumulated until it passes :data:`DRIFT_H_M`. The line belongs to the ports' solve from one set of usable
   ports: another set (ports left out) solves another airspeed, so a new set starts a new line
@@ -43,11 +44,11 @@ constant of :data:`TAU_S`; a healthy, consistent source stays near 1.
 What this cannot do: tell a source that is wrong from a state that is wrong when only one source is left;
 see a pitot under-read smaller than the healthy pair's own disagreement (~1 m/s); or, without the ports'
 airspeed, see a fault that grows slower than the state follows it (a slowly icing pitot pulls a live wind
-with it). Nor tell a pitot that starts to read low from a change of the flight the line in α does not
-explain: a payload dropped (less throttle, another pressure pattern at the same α) still excluded a healthy
-pitot on 1 of 20 flights (docs/navigation.md, "The scenarios the 20-seed runs had left out"). Manoeuvring flight
-did on 3 of 20 until the ports' airspeed was calibrated in flight, and on none of 40 since ("The ports' airspeed
-calibrated in flight").
+with it). Nor tell a pitot that starts to read low from a change of the flight the plane in α and the elevator
+does not explain. A payload dropped moves the CG, so the elevator trims anew at the same α, and the ports read
+0.2–0.9 m/s higher there; with a line in α alone that excluded a healthy pitot on 1 of 20 flights (docs/navigation.md,
+"A payload drop moves the elevator, not α"). Manoeuvring flight did on 3 of 20 until the ports' airspeed was
+calibrated in flight, and on none of 40 since ("The ports' airspeed calibrated in flight").
 """
 
 from __future__ import annotations
@@ -65,6 +66,8 @@ from vdm_aero._typing import F64Array
 __all__ = [
     "DETECT",
     "DRIFT_BIAS_TAU_S",
+    "DRIFT_ELEVATOR_RANGE_SIGMAS",
+    "DRIFT_ELEVATOR_SLOPE_PRIOR_M_S_PER_RAD",
     "DRIFT_H_M",
     "DRIFT_K_M_S",
     "DRIFT_MIN_AIRSPEED_M_S",
@@ -117,6 +120,17 @@ RELEARN_AFTER_S: Final = 1.0
 # defined before α has varied; set offline on 47 recorded harsh flights (docs/navigation.md), where 4× weaker
 # or stronger changed nothing
 DRIFT_SLOPE_PRIOR_M_S_PER_RAD: Final = 3.5 * 180.0 / math.pi
+# ... and in the elevator's deflection, by the same convention (300 m/s per rad). Both priors enter the sums
+# normalised to weights of one, so each weighs like a spread of its variable: 1/300 rad (0.19°) of the elevator.
+# On the harsh fleet's 20 payload-drop flights the elevator's spread before the drop was 0.3–1.25° (1σ), which
+# keeps 72–98 % of the slope fitted there, −34 … +12 m/s per rad, the same within ±5 on each airframe's five
+# flights (docs/navigation.md, "A payload drop moves the elevator, not α")
+DRIFT_ELEVATOR_SLOPE_PRIOR_M_S_PER_RAD: Final = 300.0
+# The plane is judged only within the elevator it learnt over: its mean ± this many of its spread (the spread at
+# least the prior's). A slope learnt in cruise (elevator −5 … 0°) said the pitot should read 0.5–1 m/s over the
+# ports in a slow pull-up at −8 … −16°, where the ports read 2 m/s over it: a healthy pitot excluded (manoeuvring
+# seed 13, 2026-11-30). Beyond the spread the plane is a guess, as the ports' airspeed table is beyond its α
+DRIFT_ELEVATOR_RANGE_SIGMAS: Final = 3.0
 
 
 @dataclass(frozen=True)
@@ -142,11 +156,13 @@ class PitotUnderRead:
     """The one-sided CUSUM on the pitot's under-read against the ports (module docstring). Feed the pitot's
     airspeed less the ports' with :meth:`observe`; :attr:`alarm` says the pitot reads low.
 
-    The healthy difference is a line in the ports' α, not one bias: the ports' airspeed error depends on the
-    flight condition (on the harsh fleet up to ~1.9 m/s low at 13 m/s and α ≈ 4°, ~0.1 m/s at 22 m/s), and a
-    bias learnt in one condition took a speed change, or a payload dropped, for a pitot starting to read low.
-    The line is a least-squares fit with exponential forgetting (the bias's time constant; with α constant it
-    is exactly that running mean) and a weak prior of a flat line, so it is defined before α has varied."""
+    The healthy difference is a plane in the ports' α and the elevator's deflection, not one bias: the ports'
+    airspeed error depends on the flight condition (on the harsh fleet up to ~1.9 m/s low at 13 m/s and α ≈ 4°,
+    ~0.1 m/s at 22 m/s), and a bias learnt in one condition took a speed change for a pitot starting to read
+    low; a line in α alone took a payload dropped (the elevator trimmed anew at the same α) for one. The plane
+    is a least-squares fit with exponential forgetting (the bias's time constant; with α and the elevator
+    constant it is exactly that running mean) and a weak prior of a flat plane, so it is defined before either
+    has varied. Without servo outputs the elevator stays 0 and the plane is the line in α."""
 
     k_m_s: float = DRIFT_K_M_S
     h_m: float = DRIFT_H_M
@@ -154,48 +170,56 @@ class PitotUnderRead:
     smooth_tau_s: float = TAU_S
     warmup_s: float = DRIFT_WARMUP_S
     slope_prior_m_s_per_rad: float = DRIFT_SLOPE_PRIOR_M_S_PER_RAD
+    elevator_slope_prior_m_s_per_rad: float = DRIFT_ELEVATOR_SLOPE_PRIOR_M_S_PER_RAD
     residual_m_s: float = 0.0  # smoothed, less the bias; negative: the pitot reads low
     cusum_m: float = 0.0
     first_t_s: float | None = None
     last_t_s: float | None = None
     alpha_rad: float = 0.0  # the latest α the line was evaluated at
-    # the forgetting least squares in (1, α): normal matrix and right-hand side, the prior on the slope apart
-    _ata: F64Array = field(default_factory=lambda: np.zeros((2, 2)))
-    _atb: F64Array = field(default_factory=lambda: np.zeros(2))
-    # its solution (intercept, slope), solved again only after the sums move: the pair and the under-read test
-    # both read the line at every pitot sample, and a 2 × 2 solve costs as much as a measurement's Jacobian
-    _line: tuple[float, float] | None = field(default=None, init=False, repr=False, compare=False)
+    elevator_rad: float = 0.0  # the latest elevator deflection (trailing edge down positive)
+    # the forgetting least squares in (1, α, δe): normal matrix and right-hand side, the prior on the slopes apart
+    _ata: F64Array = field(default_factory=lambda: np.zeros((3, 3)))
+    _atb: F64Array = field(default_factory=lambda: np.zeros(3))
+    # its solution (intercept, slopes), solved again only after the sums move: the pair and the under-read test
+    # both read the plane at every pitot sample, and a 3 × 3 solve costs as much as a measurement's Jacobian
+    _line: tuple[float, float, float] | None = field(default=None, init=False, repr=False, compare=False)
 
     @property
     def alarm(self) -> bool:
         return self.cusum_m > self.h_m
 
-    def bias_at(self, alpha_rad: float) -> float:
-        """The healthy difference [m/s] at ``alpha_rad`` (0 before the first observation)."""
+    def bias_at(self, alpha_rad: float, elevator_rad: float = math.nan) -> float:
+        """The healthy difference [m/s] at ``alpha_rad`` and ``elevator_rad`` (NaN: the latest); 0 before the
+        first observation."""
         if self.first_t_s is None:
             return 0.0
         if self._line is None:
-            prior = np.diag([0.0, self.slope_prior_m_s_per_rad**-2])
-            intercept, slope = np.linalg.solve(self._ata + prior, self._atb)
-            self._line = (float(intercept), float(slope))
-        intercept, slope = self._line
-        return intercept + slope * alpha_rad
+            prior = np.diag([0.0, self.slope_prior_m_s_per_rad**-2, self.elevator_slope_prior_m_s_per_rad**-2])
+            intercept, slope, slope_e = np.linalg.solve(self._ata + prior, self._atb)
+            self._line = (float(intercept), float(slope), float(slope_e))
+        intercept, slope, slope_e = self._line
+        elevator = elevator_rad if math.isfinite(elevator_rad) else self.elevator_rad
+        return intercept + slope * alpha_rad + slope_e * elevator
 
     @property
     def bias_m_s(self) -> float:
-        """The healthy difference [m/s] at the latest α."""
+        """The healthy difference [m/s] at the latest α and elevator."""
         return self.bias_at(self.alpha_rad)
 
     def observe(self, t_s: float, difference_m_s: float, *, alpha_rad: float = math.nan,
-                learn: bool = True, judge: bool = True) -> None:  # fmt: skip
-        """The pitot's airspeed less the ports' [m/s] at ``t_s``, with the ports' ``alpha_rad`` (NaN: as
-        before); ``learn``: both are fused, so a healthy difference may move the line; ``judge``: the ports'
-        airspeed is calibrated at this α, so an under-read may add to the sum (else the sum is held)."""
+                elevator_rad: float = math.nan, learn: bool = True, judge: bool = True) -> None:  # fmt: skip
+        """The pitot's airspeed less the ports' [m/s] at ``t_s``, with the ports' ``alpha_rad`` and the
+        elevator's ``elevator_rad`` (NaN: as before); ``learn``: both are fused, so a healthy difference may
+        move the plane; ``judge``: the ports' airspeed is calibrated at this α, so an under-read may add to the
+        sum. Where it is not, or the elevator lies outside what the plane learnt over (:meth:`covers`), the
+        smoothed residual and the sum are held: a sample not judged must not carry into the next ones that are."""
         if not math.isfinite(difference_m_s):
             return
         if math.isfinite(alpha_rad):
             self.alpha_rad = alpha_rad
-        x = np.array([1.0, self.alpha_rad])
+        if math.isfinite(elevator_rad):
+            self.elevator_rad = elevator_rad
+        x = np.array([1.0, self.alpha_rad, self.elevator_rad])
         if self.first_t_s is None or self.last_t_s is None:
             self.first_t_s = self.last_t_s = t_s
             self._ata, self._atb, self._line = np.outer(x, x), difference_m_s * x, None
@@ -204,8 +228,10 @@ class PitotUnderRead:
         dt = max(t_s - self.last_t_s, 0.0)
         self.last_t_s = t_s
         age = t_s - self.first_t_s
-        a = math.exp(-dt / self.smooth_tau_s)
-        self.residual_m_s = a * self.residual_m_s + (1.0 - a) * (difference_m_s - self.bias_m_s)
+        judge = judge and self.covers(self.elevator_rad)
+        if judge:
+            a = math.exp(-dt / self.smooth_tau_s)
+            self.residual_m_s = a * self.residual_m_s + (1.0 - a) * (difference_m_s - self.bias_m_s)
         if age < self.warmup_s:
             self.cusum_m = 0.0  # the line is still a short average
         else:
@@ -217,6 +243,18 @@ class PitotUnderRead:
             self._ata = b * self._ata + (1.0 - b) * np.outer(x, x)
             self._atb = b * self._atb + (1.0 - b) * difference_m_s * x
             self._line = None
+
+    def covers(self, elevator_rad: float) -> bool:
+        """Whether ``elevator_rad`` lies within :data:`DRIFT_ELEVATOR_RANGE_SIGMAS` of the elevator the plane
+        learnt over (its forgetting mean and spread; True before the first observation)."""
+        if self.first_t_s is None:
+            return True
+        w = self._ata[0, 0]
+        mean = self._ata[0, 2] / w
+        spread = math.sqrt(max(self._ata[2, 2] / w - mean * mean, 0.0))
+        return abs(elevator_rad - mean) <= DRIFT_ELEVATOR_RANGE_SIGMAS * max(
+            spread, 1.0 / self.elevator_slope_prior_m_s_per_rad
+        )
 
     def restart(self) -> None:
         """After the pitot's exclusion: the sum starts again (the bias is kept: it is the healthy pair's)."""
@@ -267,9 +305,11 @@ class AirDataFdi:
 
     def observe_pair(self, t_s: float, difference_m_s: float, sigma_m_s: float,
                      airspeed_m_s: float | None = None, alpha_rad: float = math.nan,
-                     port_set: bytes | None = None, *, judge: bool = True) -> None:  # fmt: skip
+                     port_set: bytes | None = None, *, elevator_rad: float = math.nan,
+                     judge: bool = True) -> None:  # fmt: skip
         """The pitot's airspeed less the ports' [m/s] at ``t_s``, with the σ of that difference; with the
-        pitot's ``airspeed_m_s`` in its useful range, also the under-read test (at the ports' ``alpha_rad``),
+        pitot's ``airspeed_m_s`` in its useful range, also the under-read test (at the ports' ``alpha_rad`` and
+        the elevator's ``elevator_rad``),
         whose line belongs to the ports' solve from ``port_set`` (any hashable mark of the usable ports). The
         pair's level judges the difference less the under-read test's healthy line at this α: in a slow pull-up
         the ports' airspeed reads 2–6 m/s under a healthy pitot on the harsh fleet, the line knows it, and the
@@ -278,10 +318,12 @@ class AirDataFdi:
         (:mod:`vdm_aero.nav.port_speed_calibration`): the pair's level and the under-read test's sum are then
         held (the test still learns its line), since there the ports' airspeed is the design model's guess
         with the table's edge value, not a measurement to judge the pitot by (on the harsh fleet 4–5 m/s low
-        at α 13° in a pull-up, where the calibration flight reached 7°)."""
+        at α 13° in a pull-up, where the calibration flight reached 7°). Held too where the elevator lies
+        outside what the line learnt over (:meth:`PitotUnderRead.covers`)."""
         ur = self.under_read
+        judge = judge and (not math.isfinite(elevator_rad) or ur.covers(elevator_rad))
         if judge:
-            line = ur.bias_at(alpha_rad if math.isfinite(alpha_rad) else ur.alpha_rad)
+            line = ur.bias_at(alpha_rad if math.isfinite(alpha_rad) else ur.alpha_rad, elevator_rad)
             self._smooth(self.pair, t_s, ((difference_m_s - line) / sigma_m_s) ** 2)
         else:  # the pair is still known (both airspeeds are there), its level is held
             self.pair.last_t_s = t_s
@@ -304,7 +346,9 @@ class AirDataFdi:
                     self._line_port_set, self._port_set_since_s = port_set, None
         else:
             self._port_set_since_s = None
-        self.under_read.observe(t_s, difference_m_s, alpha_rad=alpha_rad, learn=both, judge=judge)
+        self.under_read.observe(
+            t_s, difference_m_s, alpha_rad=alpha_rad, elevator_rad=elevator_rad, learn=both, judge=judge
+        )
 
     def _pair_known(self, t_s: float) -> bool:
         both = self.fused("pitot") and self.fused("ports")
@@ -494,6 +538,17 @@ class WindChangeDetector:
 
     def release(self) -> None:
         self._anchor = None
+
+    def ins_turned(self) -> tuple[float, float] | None:
+        """Since the anchor: the size of the INS's horizontal velocity change [m/s] and of its integral [m]. A
+        heading error δψ turns both, so the free INS is off by δψ times each: in a 160° turn (a 37 m/s change
+        in 11 s) a 3° heading error is 2 m/s and tens of metres, beside which the tilt's share is small."""
+        if self._anchor is None or not self._pose:
+            return None
+        t0, a, _ = self._anchor
+        b = self._pose[-1]
+        tau = self._t[-1] - t0
+        return math.hypot(b[0] - a[0], b[1] - a[1]), math.hypot(b[2] - a[2] - a[0] * tau, b[3] - a[3] - a[1] * tau)
 
     @property
     def anchored_s(self) -> float | None:

@@ -1252,7 +1252,8 @@ class NavFilter:
         if self.fdi is not None and self._ports_speed is not None and t_s - self._ports_speed[0] <= PAIR_MAX_AGE_S:
             _, v_ports, sig_ports, alpha_ports, port_set, calibrated = self._ports_speed  # no state between the two
             self.fdi.observe_pair(t_s, tas - v_ports, math.hypot(self.config.pitot_sigma_m_s, sig_ports), tas,
-                                  alpha_ports, port_set, judge=calibrated)  # fmt: skip
+                                  alpha_ports, port_set, elevator_rad=float(self.inputs.controls_rad[1]),
+                                  judge=calibrated)  # fmt: skip
         # below the pitot's useful range (and on the ground) it is never fused, but a pitot reading near zero in
         # flight is what a blocked one does: the FDI judges it
         self._fuse_source("pitot", meas, fuse=tas >= 8.0)
@@ -1406,6 +1407,13 @@ class NavFilter:
         self.engine.reset_states(IDX["wind"], np.diag(np.square(WIND_RELEARN_SIGMA_M_S)))
         self.engine.reset_states(IDX["gust"], np.diag(np.square(self.process.gust_sigma_m_s)))
 
+    def _heading_sigma_rad(self) -> float:
+        """The heading's σ [rad]: the attitude error (body frame) turned to NED, its down component."""
+        assert self.engine is not None and self.x is not None
+        c_nb = dcm_from_quat(self.x.q_nb)
+        p_theta = np.asarray(self.engine.P)[IDX["theta"], IDX["theta"]]
+        return math.sqrt(max(float((c_nb @ p_theta @ c_nb.T)[2, 2]), 0.0))
+
     def _settle_wind_change(self, t_s: float) -> None:
         """After a wind event in an outage: once the change is over (|Δw| over the last 2 s under
         :data:`WIND_SETTLED_M_S`) and has stayed (:data:`WIND_STEP_M_S` from before it), fuse the free INS's pose
@@ -1429,6 +1437,7 @@ class NavFilter:
         step = wc.change_since_anchor()
         clone = self._anchor_clone_s
         fix = wc.ins_window(t_s) if self.in_outage and clone in self.engine.clone_keys else None
+        turned = wc.ins_turned()
         wc.release()
         # the free INS turns its increments to NED with the filter's heading: with the compass gated out lately
         # the heading is what is wrong, and the "change" is the INS and the air data turned apart by it
@@ -1439,8 +1448,12 @@ class NavFilter:
             return
         (pn, pe), (vn, ve), tau = fix
         a = INS_WINDOW_ACCEL_M_S2
-        sig_v = math.hypot(INS_WINDOW_SIGMA_V_M_S, a * tau)
-        sig_p = math.hypot(INS_WINDOW_SIGMA_P_M, 0.5 * a * tau * tau)
+        # the free INS turns its increments with the filter's heading, so its heading error turns the velocity
+        # change and its integral (Groves 2013, §5.7: δv̇ = −(f × δψ)); over a turn that, not the tilt, dominates
+        dv_m_s, dp_m = turned if turned is not None else (0.0, 0.0)
+        sig_psi = self._heading_sigma_rad()
+        sig_v = math.hypot(INS_WINDOW_SIGMA_V_M_S, a * tau, sig_psi * dv_m_s)
+        sig_p = math.hypot(INS_WINDOW_SIGMA_P_M, 0.5 * a * tau * tau, sig_psi * dp_m)
         # the free INS ran from the filter's own pose at the clone: its error is that pose's error plus the INS's
         # own, so the fix is relative to the clone (fused as if independent, every fix shrank the covariance:
         # a return through a gradient ended 24 km off with σ 9 m). No gate: the point is to move the state by
@@ -1449,8 +1462,8 @@ class NavFilter:
         assert self.x is not None
         y = np.array([pn, pe, vn, ve]) - model.evaluate(self.x)
         consider = self._wind_live if t_s < self._wind_live_until_s else self._consider
-        dx, res = self.engine.update_relative(y, model.jacobian(self.x), -np.eye(4), model.covariance(),
-                                              clone, consider)  # fmt: skip
+        dx, res = self.engine.update_relative(y, model.jacobian(self.x), model.clone_jacobian(tau),
+                                              model.covariance(), clone, consider)  # fmt: skip
         self.nis.setdefault(model.name, deque(maxlen=NIS_WINDOW)).append(res.nis)
         if res.accepted:
             self._correct(dx)

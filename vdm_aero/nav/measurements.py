@@ -153,6 +153,14 @@ class InsWindowFix:
     def covariance(self) -> F64Array:
         return _diag((self.sigma_p_m, self.sigma_p_m, self.sigma_v_m_s, self.sigma_v_m_s))
 
+    @staticmethod
+    def clone_jacobian(tau_s: float) -> F64Array:
+        """∂(innovation)/∂(the clone's error in p N, E, v N, E) for a free INS run ``tau_s`` [s] from it: its
+        position is p + v·τ + ∫Δv, so the clone's velocity error moves it by τ times that error."""
+        a = -np.eye(4)
+        a[0, 2] = a[1, 3] = -tau_s
+        return a
+
 
 @dataclass(frozen=True)
 class GnssVelocity:

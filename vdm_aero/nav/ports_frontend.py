@@ -47,7 +47,7 @@ class QuietPorts:
     shown in healthy flight (learnt: a port at the stagnation point breathes more than one on the shoulder). A
     port whose activity falls under :data:`QUIET_SHARE` of its own share, while the common activity is well above
     the transducers' noise (:data:`ACTIVE_NOISE_RATIO`), no longer sees the flow; it is back once above
-    :data:`BACK_SHARE` for :data:`BACK_S`.
+    :data:`BACK_SHARE` for :data:`BACK_S` where it could be called quiet (below: a learnt band, α steady).
 
     A port's share depends on the flow it sees, so it is learnt, and judged, per band of the air data's α
     (:data:`BAND_DEG`): a port near the zero of its Cp(α) breathes little in slow flight at high α and much in
@@ -162,7 +162,9 @@ class QuietPorts:
         self.quiet |= newly
         self._back_since[newly] = math.nan
         for i in np.flatnonzero(self.quiet & ~newly):
-            if not rel[i] > self.BACK_SHARE:
+            # coming back is a verdict too: in a band not yet learnt the share is the nearest band's, and a
+            # blocked port's leak read 0.3–0.45 of it there (the benchmark's blocked ports, 2026-11-30)
+            if not (judged[i] and rel[i] > self.BACK_SHARE):
                 self._back_since[i] = math.nan
             elif math.isnan(self._back_since[i]):
                 self._back_since[i] = t_s
