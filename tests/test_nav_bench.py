@@ -57,6 +57,23 @@ def test_metrics_of_an_analytic_drift() -> None:
     assert m["reacquisition_jump_m"] == pytest.approx(WIND_ERROR_M_S * LENGTH_S, abs=1e-6)
 
 
+def test_the_nees_splits_into_the_block_the_filter_is_too_sure_of() -> None:
+    """Aided epochs whose attitude is 0.02 rad off in yaw with a claimed σ of 0.01 rad, velocity 0.5 m/s off
+    with σ 0.5 m/s, position exact: the attitude's 3-dof NEES is (0.02 / 0.01)² = 4, the velocity's 1, the
+    position's 0, and the 9-dof NEES their sum."""
+    rows, truth = _straight_flight()
+    yaw = 0.02
+    cov = np.diag([4.0] * 3 + [0.25] * 3 + [1e-4] * 3)
+    q = np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])
+    rows = [(r[0], r[1], r[2] + (0.0 if r[6] else np.array([0.5, 0.0, 0.0])), q, r[4], cov, *r[6:]) for r in rows]
+    m = _metrics(rows, truth, T0_S, LENGTH_S, SimpleNamespace(fallback=False, rejected={}))  # type: ignore[arg-type]
+    blocks = m["nees_block_median"]
+    assert blocks["attitude"] == pytest.approx(4.0, rel=1e-6)
+    assert blocks["velocity"] == pytest.approx(1.0, rel=1e-6)
+    assert blocks["position"] == pytest.approx(0.0, abs=1e-9)
+    assert m["nees_median"] == pytest.approx(5.0, rel=1e-6)
+
+
 def _pitot_log() -> dict[str, np.ndarray]:
     t = np.arange(0.0, 100.0, 0.02)
     return {"pitot_t_s": t, "pitot_dp_pa": np.full_like(t, 220.0)}

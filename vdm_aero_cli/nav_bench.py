@@ -116,6 +116,10 @@ RECORD_HZ: Final = 5.0
 CONVERGED_AFTER_S: Final = 60.0  # NEES epochs: GNSS-aided, this long after the filter started
 NEES_DOF: Final = 9
 NEES_BAND_95: Final = (2.700, 19.023)  # χ²(9) 2.5 % and 97.5 % points
+# the 9-dof NEES split into its three blocks (each against its own marginal covariance, 3 dof): which of
+# position, velocity and attitude the filter is too sure of. A consistent block's median is χ²(3)'s
+NEES_BLOCKS: Final = {"position": slice(0, 3), "velocity": slice(3, 6), "attitude": slice(6, 9)}
+NEES_BLOCK_MEDIAN_CONSISTENT: Final = 2.366  # χ²(3) median
 
 
 @dataclass(frozen=True)
@@ -496,6 +500,11 @@ def _metrics(rows: list[tuple[Any, ...]], truth: dict[str, F64Array], t0: float,
     sel = aided & (t > t[0] + CONVERGED_AFTER_S) & (t < t0)
     nees = np.array([float(e @ np.linalg.solve(c, e)) for e, c in zip(err9[sel], cov[sel], strict=True)])
     in_band = float(np.mean((nees >= NEES_BAND_95[0]) & (nees <= NEES_BAND_95[1]))) if len(nees) else math.nan
+    blocks = {}
+    for name, b in NEES_BLOCKS.items():
+        e_b, c_b = err9[sel][:, b], cov[sel][:, b, b]
+        quad = np.einsum("ki,ki->k", e_b, np.linalg.solve(c_b, e_b[..., None])[..., 0])  # eᵀ·P⁻¹·e per epoch
+        blocks[name] = float(np.median(quad)) if len(nees) else math.nan
     # distance flown over the ground during the outage
     tt = truth["t_s"]
     m = (tt >= t0) & (tt < t1)
@@ -516,6 +525,7 @@ def _metrics(rows: list[tuple[Any, ...]], truth: dict[str, F64Array], t0: float,
         "covered_2sigma_if_consistent": two_sigma_coverage_if_consistent(cov[i_end][:2, :2]),
         "nees_in_band": in_band,
         "nees_median": float(np.median(nees)) if len(nees) else math.nan,
+        "nees_block_median": blocks,
         "reacquisition_jump_m": jump,
         "fallback": f.fallback,
         "rejected": dict(f.rejected),
@@ -691,6 +701,9 @@ def summarise(rows: list[dict[str, Any]], spec: BenchSpec) -> dict[str, Any]:
                 "cpu_s_per_flight_s": float(np.median([r["filter_cpu_s_per_flight_s"][key] for r in runs])),
                 "seeds": len(ms),
             }
+            if all("nees_block_median" in x for x in ms):  # not in reports written before 2026-12-01
+                per[m]["nees_block_median"] = {b: float(np.nanmedian([x["nees_block_median"][b] for x in ms]))
+                                               for b in NEES_BLOCKS}  # fmt: skip
             if all("covered_2sigma_if_consistent" in x for x in ms):  # not in reports written before 2026-11-27
                 # what a consistent filter would score with these σ, and how often it would reach the bar's 90 %
                 ideal = [x["covered_2sigma_if_consistent"] for x in ms]
@@ -1247,6 +1260,10 @@ def _to_product(stats: dict[str, Any]) -> str:
     return f"{stats['ratio_to_product']:.2f}" + ("" if ci is None else f" ({ci[0]:.2f}–{ci[1]:.2f})")
 
 
+def _nees_blocks(med: dict[str, float]) -> str:
+    return " / ".join(f"{med[b]:.1f}" for b in NEES_BLOCKS)
+
+
 def format_report(doc: dict[str, Any]) -> str:
     spec = doc["spec"]
     first = int(spec.get("first_seed", 0))  # a run on other seeds says which: a threshold's unseen-seed check
@@ -1265,6 +1282,10 @@ def format_report(doc: dict[str, Any]) -> str:
                 f"| {100 * s['nees_in_band']:.0f} % | {s['reacquisition_jump_median_m']:.1f} "
                 f"| {1e3 * s['cpu_s_per_flight_s']:.1f} ms | {_to_product(s)} |"
             )
+        blocks = [f"{m} {_nees_blocks(s['nees_block_median'])}" for m, s in per.items() if "nees_block_median" in s]
+        if blocks:
+            lines += ["", "NEES by block, the median over the runs of each run's aided median (position / velocity / "
+                      f"attitude; {NEES_BLOCK_MEDIAN_CONSISTENT} if consistent): {'; '.join(blocks)}."]  # fmt: skip
         lines.append("")
     costs = cost_table(doc["runs"], spec["modes"])
     if any(w.startswith("only:") for w, _ in costs):
