@@ -1,7 +1,7 @@
 """What survives a restart of the service: the filter's slow states, and the navigation output log.
 
 **Filter state** (:class:`FilterStateStore`): the wind, the gyro/accelerometer biases, the magnetometer
-and baro offsets, the six model-correction parameters and their covariance block, and the measured
+and baro offsets, the model-correction parameters (by name) and their covariance block, and the measured
 turbulence; saved atomically (temporary file, fsync, rename) periodically and on SIGTERM. A restarted
 service initialises position, velocity and attitude from the first GNSS fix as always, then takes the
 saved slow states; their covariance is doubled in σ (the aircraft may have been powered down and the
@@ -34,11 +34,15 @@ import numpy as np
 
 from vdm_aero.errors import UserInputError
 from vdm_aero.nav.filter import NavFilter, slow_index
+from vdm_aero.nav.state import AERO_PARAMS, AERO_PRIOR
 
 __all__ = ["NAV_LOG_COLUMNS", "FilterStateStore", "NavLog"]
 
-FORMAT = "vdm-aero-filter-state/2"
+FORMAT = "vdm-aero-filter-state/3"
+FORMAT_V2 = "vdm-aero-filter-state/2"  # without the aero parameters' names: those of AERO_PARAMS_V2
 FORMAT_V1 = "vdm-aero-filter-state/1"  # without mode/models/boot checks: read, restored as from another boot
+AERO_PARAMS_V2 = ("alpha_bias_rad", "beta_bias_rad", "airspeed_scale", "cx_bias", "cz_scale", "thrust_scale")
+"""The model-correction parameters of formats 1 and 2 (before ``cy_bias``, 2026-12-01)."""
 WIND_MAX_AGE_S = 600.0
 RESTORE_SIGMA_FACTOR = 2.0
 BOOT_MATCH_S = 5.0  # wall clock against the autopilot's boot time: NTP steps and link latency stay below
@@ -63,7 +67,7 @@ class FilterStateStore:
         gust = np.asarray(f.process.gust_sigma_m_s)
         np.savez(buf, format=np.array(FORMAT), mode=np.array(f.mode), saved_unix_s=np.array(time.time()),
                  values=values, cov=cov, gust_sigma_m_s=gust, models_id=np.array(models_id),
-                 autopilot_boot_unix_s=np.array(autopilot_boot_unix_s))  # fmt: skip
+                 autopilot_boot_unix_s=np.array(autopilot_boot_unix_s), aero_params=np.array(AERO_PARAMS))  # fmt: skip
         self.path.parent.mkdir(parents=True, exist_ok=True)
         tmp = self.path.with_name(f".{self.path.name}.tmp")
         try:
@@ -87,9 +91,15 @@ class FilterStateStore:
                 d = {k: z[k] for k in z.files}
         except (OSError, ValueError) as e:
             raise UserInputError(f"{self.path}: not a filter state file ({e}); delete it to start afresh") from None
-        n = len(slow_index())
-        if str(d.get("format")) not in (FORMAT, FORMAT_V1) or d["values"].shape != (n,) or d["cov"].shape != (n, n):
+        fmt = str(d.get("format"))
+        if fmt not in (FORMAT, FORMAT_V2, FORMAT_V1) or "values" not in d or "cov" not in d:
             raise UserInputError(f"{self.path}: not a {FORMAT} file; delete it to start afresh")
+        names = tuple(str(a) for a in d["aero_params"]) if "aero_params" in d else AERO_PARAMS_V2
+        n_saved = len(slow_index()) - len(AERO_PARAMS) + len(names)
+        shapes = d["values"].shape == (n_saved,) and d["cov"].shape == (n_saved, n_saved)
+        if not shapes or not set(names) <= set(AERO_PARAMS):
+            raise UserInputError(f"{self.path}: not a {FORMAT} file; delete it to start afresh")
+        d["values"], d["cov"] = _to_current_aero(d["values"], d["cov"], names)
         return d
 
     @staticmethod
@@ -116,6 +126,22 @@ class FilterStateStore:
         if gs.shape == (3,) and np.all(np.isfinite(gs)):
             f.process.set_gust_sigma(gs)
         return restored
+
+
+def _to_current_aero(values: np.ndarray, cov: np.ndarray, names: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Slow states saved with the aero parameters ``names`` (the last block of :func:`slow_index`) in the
+    layout of :data:`AERO_PARAMS`: a parameter the file does not hold starts at its prior, uncorrelated,
+    so that an upgrade that adds one keeps every state the file does hold."""
+    n_other = len(values) - len(names)
+    src = list(range(n_other)) + [n_other + names.index(k) if k in names else -1 for k in AERO_PARAMS]
+    prior = np.array([AERO_PRIOR[k] for k in AERO_PARAMS])
+    out_v = np.concatenate([values[:n_other], prior[:, 0]])
+    out_c = np.diag(np.concatenate([np.zeros(n_other), np.square(prior[:, 1])]))
+    have = np.array([i for i, j in enumerate(src) if j >= 0])
+    take = np.array([src[i] for i in have])
+    out_v[have] = values[take]
+    out_c[np.ix_(have, have)] = cov[np.ix_(take, take)]
+    return out_v, out_c
 
 
 NAV_LOG_COLUMNS = (

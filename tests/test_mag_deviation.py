@@ -71,7 +71,13 @@ def test_the_product_mode_holds_its_heading_through_an_outage_on_a_deviated_comp
 ) -> None:
     """The module's flight with a compass as the harsh world builds it (soft iron at the calibration's ±3 %
     limit, a motor field of 20 % of the Earth's at full throttle); a 50 s outage after 150 s of aided
-    flight. Without the deviation the magnetometer turns the heading as the aircraft turns."""
+    flight. Without the deviation the magnetometer turns the heading as the aircraft turns.
+
+    The bars come from twelve deviation draws (seeds 11–22, 2026-12-01), on main's code and on the code with the
+    side-force bias alike: the heading's rms with the deviation over without it was 0.74 and 0.75 pooled, from
+    0.49 to 2.4 per draw (the bar had been 0.6, which 2 of the 12 draws met on main's code, this one at 0.59); the
+    position's at the outage's end 0.61–0.77 on every draw. So: this draw's heading under 0.8× and its position
+    under 0.8×."""
     rng = np.random.default_rng(11)
     s = rng.uniform(-0.03, 0.03, (3, 3))
     motor_t = np.array([0.6, -0.5, 0.62]) * 0.2 * 50e-6
@@ -90,6 +96,6 @@ def test_the_product_mode_holds_its_heading_through_an_outage_on_a_deviated_comp
             yaw[name].append(abs(_yaw_error_deg(world, f, float(t))))
     with_dev, without = (float(np.sqrt(np.mean(np.square(yaw[k])))) for k in ("vdm", "vdm-no-deviation"))
     assert runner.filters["vdm"].mag_deviation is not None and runner.filters["vdm"].mag_deviation.ready
-    assert with_dev < 0.6 * without, (with_dev, without)
+    assert with_dev < 0.8 * without, (with_dev, without)
     e_dev, e_without = (_h_error(world, runner.filters[k], t1 - 1.0) for k in ("vdm", "vdm-no-deviation"))
-    assert e_dev < e_without, (e_dev, e_without)
+    assert e_dev < 0.8 * e_without, (e_dev, e_without)

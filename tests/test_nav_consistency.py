@@ -24,6 +24,10 @@ from vdm_aero.rotation import dcm_from_quat, quat_from_euler, quat_log, quat_mul
 from vdm_aero.vehicle import load_vehicle
 
 RUNS = 8
+# The force-model mode's outage: over 8 runs its in-band share hung on the draws, on main's code as on the code with
+# the side-force bias (2026-12-01: 100 / 97 / 94 / 70 % and 88 / 100 / 81 / 94 % on four seeds), so 8 runs could not
+# tell a change from the seed. 32 runs average the draws, and their band is narrower (7.6–10.5 against 6.3–12.2).
+RUNS_OUTAGE = 32
 DURATION_S = 60.0
 RATE_HZ = 50.0
 V_M_S, TURN_RAD_S = 18.0, 0.1
@@ -66,7 +70,7 @@ def _port_frame(t: float, rho: float, f_b: np.ndarray, aero: np.ndarray, cfg: Na
     f = f_b + rng.normal(0.0, cfg.force_sigma_m_s2)
     c = np.zeros(6)
     c[0] = (f[0] - thrust_m_s2) / qsm - aero[s["cx_bias"]]
-    c[1] = f[1] / qsm
+    c[1] = f[1] / qsm - aero[s["cy_bias"]]
     c[2] = f[2] / (qsm * aero[s["cz_scale"]])
     return PortFrame(t, np.ones(12, dtype=bool), airdata, np.diag(np.square(PORT_AIRDATA_SIGMA)), 0.5 * rho * V_M_S**2,
                      {"deim": c})  # fmt: skip
@@ -154,9 +158,10 @@ def _run(rng: np.random.Generator, mode: str = "ins", delayed: bool = False, sky
 def test_monte_carlo_nees_inside_the_chi2_band(mode: str, delayed: bool, wrong_lag: bool, gnss_until_s: float) -> None:
     # wrong_lag: the receiver's latency error, a state, drawn from its prior (the stamps off by it)
     rng = np.random.default_rng(20261124)
-    runs = np.array([_run(rng, mode, delayed, wrong_lag=wrong_lag, gnss_until_s=gnss_until_s) for _ in range(RUNS)])
+    n = RUNS_OUTAGE if math.isfinite(gnss_until_s) else RUNS
+    runs = np.array([_run(rng, mode, delayed, wrong_lag=wrong_lag, gnss_until_s=gnss_until_s) for _ in range(n)])
     mean = runs.mean(axis=0)
-    lo, hi = scipy.stats.chi2.ppf([0.025, 0.975], 9 * RUNS) / RUNS
+    lo, hi = scipy.stats.chi2.ppf([0.025, 0.975], 9 * n) / n
     inside = float(np.mean((mean >= lo) & (mean <= hi)))
     assert inside >= 0.9, f"average NEES inside [{lo:.2f}, {hi:.2f}] for {100 * inside:.0f} % of epochs"
 

@@ -186,6 +186,35 @@ def test_the_force_model_is_fused_from_complete_port_frames_only(world: dict[str
     assert f.counts["aero_force"] > force0 + 50  # the port is back: so is the force model
 
 
+def test_the_force_models_side_force_bias_is_learnt(world: dict[str, Any], monkeypatch: pytest.MonkeyPatch) -> None:
+    """DEIM's side-force coefficient from the as-built ports is off the truth's by a near-constant offset (the
+    ports' installation); without a state for it the accelerometer's y bias took it (and gyro scale and
+    cross-axis states, docs/navigation.md). The filter learns it as ``cy_bias`` while GNSS aids; scored
+    against the truth's coefficients, which the filter never sees."""
+    from vdm_aero.nav.state import AERO_SLOT
+
+    frames: list[tuple[float, float]] = []
+    ports = NavFilter.ports
+
+    def record(self: NavFilter, frame: Any) -> None:
+        if "deim" in frame.coeffs and frame.n_ok == len(frame.ok):
+            frames.append((frame.t_s, float(frame.coeffs["deim"][1])))
+        ports(self, frame)
+
+    monkeypatch.setattr(NavFilter, "ports", record)
+    r = _runner(world, ("vdm-deim",))
+    r.run_until(150.0)
+    f = r.filters["vdm-deim"]
+    assert f.x is not None
+    t, cy = np.array(frames).T
+    truth = world["truth"]
+    cy_truth = np.interp(t, truth["t_s"], truth["coeffs"][:, 1])
+    offset = cy_truth - cy
+    late = t > 60.0
+    assert abs(float(np.mean(offset[late]))) > 0.004  # the offset is there to be learnt (2× the tolerance below)
+    assert f.x.aero[AERO_SLOT["cy_bias"]] == pytest.approx(float(np.mean(offset[late])), abs=0.002)
+
+
 def _airspeed_errors(world: dict[str, Any], r: LogRunner, t0: float, t1: float) -> np.ndarray:
     """The ports' FADS airspeed of each solved frame in [t0, t1) against the truth [m/s]."""
     err: list[float] = []

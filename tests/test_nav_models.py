@@ -41,7 +41,7 @@ def _state(rng: np.random.Generator) -> NavState:
     x.b_mag_b_ut = rng.normal(0.0, 3.0, 3)
     x.b_baro_m = float(rng.normal(0.0, 3.0))
     x.b_gnss_ned = rng.normal(0.0, 1.0, 3)
-    x.aero = np.array([0.01, -0.01, 1.03, 0.004, 0.95, 0.9]) + rng.normal(0.0, 0.01, len(AERO_PARAMS))
+    x.aero = np.array([0.01, -0.01, 1.03, 0.004, -0.003, 0.95, 0.9]) + rng.normal(0.0, 0.01, len(AERO_PARAMS))
     x.gnss_lag_s = float(rng.normal(0.0, 0.05))
     x.wind_gradient_ne_per_s = rng.normal(0.0, 0.01, 2)
     return x

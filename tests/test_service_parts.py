@@ -350,6 +350,52 @@ def test_filter_state_survives_a_restart(tmp_path: Path) -> None:
         store.load()
 
 
+def test_a_state_file_saved_before_an_aero_parameter_was_added_keeps_its_states(tmp_path: Path) -> None:
+    """An upgrade that adds a model-correction parameter (``cy_bias``, format 3) must not cost the state an
+    older service saved (format 2: six parameters, no names): each saved state keeps its value and
+    covariance, the new parameter starts at its prior."""
+    from firmware_bridge.persist import AERO_PARAMS_V2, FORMAT_V2, FilterStateStore
+    from vdm_aero.nav.filter import NavConfig, NavFilter, slow_index
+    from vdm_aero.nav.state import AERO_PARAMS, AERO_PRIOR
+    from vdm_aero.vehicle import load_vehicle
+
+    cfg = NavConfig(vehicle=load_vehicle("uav-2m"), origin_alt_m=50.0, mag_field_ned_ut=np.array([20.1, -4.9, 46.5]))
+    f_b, mag = np.array([0.0, 0.0, -9.80665]), np.array([20.1, -4.9, 46.5])
+    a = NavFilter("vdm-deim", cfg)
+    a.initialise(0.0, np.zeros(3), np.array([20.0, 0.0, 0.0]), f_b, mag)
+    store = FilterStateStore(tmp_path / "filter-state.npz")
+    assert store.save(a, models_id="m1")
+    values, cov = a.slow_states()
+    n_other = len(slow_index()) - len(AERO_PARAMS)
+    rng = np.random.default_rng(3)
+    values = values + rng.normal(0.0, 0.01, len(values))
+    m = rng.normal(size=(len(values), len(values)))
+    cov = m @ m.T * 1e-4 + np.diag(np.diag(cov))  # correlated, as a flown filter's is
+    keep = np.r_[np.arange(n_other), n_other + np.array([AERO_PARAMS.index(k) for k in AERO_PARAMS_V2])]
+    with np.load(store.path) as z:
+        old = {k: z[k] for k in z.files if k != "aero_params"}
+    old.update(format=np.array(FORMAT_V2), values=values[keep], cov=cov[np.ix_(keep, keep)])
+    np.savez(store.path, **old)
+    saved = store.load()
+    assert saved is not None
+    got_v, got_c = saved["values"], saved["cov"]
+    assert got_v.shape == values.shape and got_c.shape == cov.shape
+    for i, k in enumerate(AERO_PARAMS):
+        j = n_other + i
+        if k in AERO_PARAMS_V2:
+            assert got_v[j] == values[j] and got_c[j, j] == cov[j, j]
+        else:  # the new one: its prior, uncorrelated with the rest
+            assert (got_v[j], got_c[j, j]) == (AERO_PRIOR[k][0], AERO_PRIOR[k][1] ** 2)
+            assert np.count_nonzero(got_c[j]) == 1
+    np.testing.assert_array_equal(got_v[:n_other], values[:n_other])
+    np.testing.assert_array_equal(got_c[:n_other, :n_other], cov[:n_other, :n_other])
+    assert np.all(np.linalg.eigvalsh(got_c) > 0.0)
+    b = NavFilter("vdm-deim", cfg)
+    b.initialise(0.0, np.zeros(3), np.array([20.0, 0.0, 0.0]), f_b, mag)
+    restored = FilterStateStore.restore(b, saved, models_id="m1")
+    assert restored == ["bg", "ba", "wind", "bm", "baro", "aero", "-bias-sigma"]
+
+
 # ------------------------------------------------------------------------------------ links, signing
 def test_tcp_link_reconnects_with_backoff() -> None:
     import time

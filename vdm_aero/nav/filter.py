@@ -116,6 +116,13 @@ AHEAD_OF_IMU_STEPS: Final = 1.5
 # BST-BMI088-DS000) on the angle turned, and its aiding's corrections meanwhile (assumed: 2 mrad)
 AP_ROTATION_SCALE: Final = math.hypot(0.005, 0.0125)
 AP_ROTATION_FLOOR_RAD: Final = 0.002
+# The side-force bias (AERO_PRIOR's cy_bias: 0.01 for a model from the design data) of the calibrated net: its
+# calibration fits the accelerometer's bias jointly with the net from a flight with turns (vdm_aero.calibrate), and
+# the y bias's σ it reports (0.006 m/s² on the harsh fleet's four calibrations) is 2e-4 of CY at cruise q̄S/m
+# (~30 m/s²); 0.001 leaves five times that for what moves between the calibration flight and this one. At the
+# design model's 0.01 the state costs the calibrated net the y accelerometer bias its accurate CY pins, and with it
+# the tilt and heading on long straight legs (docs/navigation.md, "The force model's side-force bias").
+CY_BIAS_SIGMA_CALIBRATED: Final = 0.001
 AP_ROTATION_WAIT_S: Final = 0.25  # the others wait this long for it: 2.5 periods of a 10 Hz ATTITUDE
 AP_ROTATION_MAX_S: Final = 5.0  # an anchor older than this is not used: the coast was long, the offset's share large
 
@@ -487,6 +494,8 @@ class NavFilter:
         self._last_airdata_s = -math.inf
         self._t_init_s = math.nan
         self._carried: tuple[F64Array, F64Array] | None = None
+        # the force model the side-force bias was learnt for ("restored": the saved state's, same models)
+        self._cy_model: str | None = None
         self._last_port_frame_s = -math.inf
         m = config.vehicle.mass.mass_kg
         self._area_per_mass = config.vehicle.reference.area_m2 / m
@@ -604,6 +613,7 @@ class NavFilter:
         self._t_init_s = t_s
         self._last_gnss_s = t_s
         self._last_port_frame_s = max(self._last_port_frame_s, t_s)  # frames have PORT_STALE_S to arrive
+        self._cy_model = None  # the side-force bias is at its prior again: its model's, at the first fusion
         if self._carried is not None:  # slow states kept through a long IMU gap
             self.restore_slow_states(*self._carried, keep_wind=True)
             self._carried = None
@@ -772,6 +782,7 @@ class NavFilter:
         if keep_aero:
             x.aero = v[13:].copy()
             restored.append("aero")
+            self._cy_model = self._cy_model or "restored"
         p = self.engine.P
         old = p[np.ix_(idx, idx)]
         wind = np.isin(idx, np.arange(IDX["wind"].start, IDX["wind"].stop))
@@ -1308,6 +1319,7 @@ class NavFilter:
             self.counts["force_incomplete_frame"] = self.counts.get("force_incomplete_frame", 0) + 1
             force = None
         if force is not None:
+            self._side_force_prior(force)
             coeffs = frame.coeffs[force][:3]
             sig = np.asarray(c.force_sigma_m_s2)
             self._fuse_source(
@@ -1315,6 +1327,20 @@ class NavFilter:
                 Measurement(frame.t_s, self.inputs.f_b.copy(), PortForce(coeffs, self._ctx(), sig)),
                 adaptive=True,
             )
+
+    def _side_force_prior(self, force: str) -> None:
+        """The side-force bias corrects the force model it was learnt with: at a model's first fusion (and at
+        any change of model) it starts from that model's prior, :data:`CY_BIAS_SIGMA_CALIBRATED` for the
+        calibrated net, ``AERO_PRIOR``'s for a model from the design data. A restored state keeps its value."""
+        if force == self._cy_model:
+            return
+        if self._cy_model != "restored":
+            assert self.x is not None and self.engine is not None
+            sigma = CY_BIAS_SIGMA_CALIBRATED if force == "deim-nn" else AERO_PRIOR["cy_bias"][1]
+            self.x.aero[AERO_SLOT["cy_bias"]] = AERO_PRIOR["cy_bias"][0]
+            j = IDX["aero"].start + AERO_SLOT["cy_bias"]
+            self.engine.reset_states(slice(j, j + 1), np.array([[sigma**2]]))
+        self._cy_model = force
 
     def _fuse_source(self, source: str, meas: Measurement, *, adaptive: bool = False, fuse: bool = True) -> None:
         """Fuse one air-data measurement (if ``fuse``) unless the FDI has excluded its source; with FDI, its

@@ -57,7 +57,7 @@ class ProcessNoise:
     wind_vertical_m_s2: float = 0.01
     mag_bias_ut_s: float = 0.005
     baro_m_s: float = 0.02
-    aero_per_s: tuple[float, ...] = (1e-5, 1e-5, 1e-5, 2e-5, 1e-4, 1e-4)
+    aero_per_s: tuple[float, ...] = (1e-5, 1e-5, 1e-5, 2e-5, 2e-5, 1e-4, 1e-4)
     # single-frequency GNSS: metre-level errors (ionosphere, multipath) correlated over minutes; a user
     # knows the receiver's accuracy class, not these numbers exactly (u-blox M9: 1.5 m CEP)
     gnss_sigma_ne_m: float = 1.5

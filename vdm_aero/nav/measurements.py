@@ -41,7 +41,8 @@ __all__ = [
 
 _E_Y = np.array([0.0, 1.0, 0.0])
 _ALPHA, _BETA, _SCALE = AERO_SLOT["alpha_bias_rad"], AERO_SLOT["beta_bias_rad"], AERO_SLOT["airspeed_scale"]
-_CX, _CZ, _THRUST = AERO_SLOT["cx_bias"], AERO_SLOT["cz_scale"], AERO_SLOT["thrust_scale"]
+_CX, _CY, _CZ = AERO_SLOT["cx_bias"], AERO_SLOT["cy_bias"], AERO_SLOT["cz_scale"]
+_THRUST = AERO_SLOT["thrust_scale"]
 
 
 class DerivativeModel(Protocol):
@@ -405,7 +406,7 @@ def _force_rows(
     qsm = 0.5 * ctx.rho_kg_m3 * k.speed**2 * ctx.area_per_mass_m2_kg
     u = float(k.v_b[0])
     thrust = a[_THRUST] * (ctx.thrust_a_n + ctx.thrust_b_n_s_m * u)
-    cc = np.array([c[0] + a[_CX], c[1], c[2] * a[_CZ]])
+    cc = np.array([c[0] + a[_CX], c[1] + a[_CY], c[2] * a[_CZ]])
     h = qsm * cc + x.b_accel_b
     h[0] += thrust / ctx.mass_kg
     dqsm = ctx.rho_kg_m3 * ctx.area_per_mass_m2_kg * k.v_b  # ∂(q̄S/m)/∂v_b
@@ -417,6 +418,7 @@ def _force_rows(
 def _force_params(h: F64Array, x: NavState, qsm: float, c: F64Array, ctx: ForceContext, k: AirKinematics) -> None:
     h[:, IDX["ba"]] = np.eye(3)
     h[0, AERO_INDEX["cx_bias"]] = qsm
+    h[1, AERO_INDEX["cy_bias"]] = qsm
     h[2, AERO_INDEX["cz_scale"]] = qsm * c[2]
     h[0, AERO_INDEX["thrust_scale"]] = (ctx.thrust_a_n + ctx.thrust_b_n_s_m * float(k.v_b[0])) / ctx.mass_kg
 

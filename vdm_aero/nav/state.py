@@ -38,10 +38,13 @@ from vdm_aero.rotation import quat_exp, quat_log, quat_multiply
 
 __all__ = ["AERO_INDEX", "AERO_PARAMS", "AERO_PRIOR", "AERO_SLOT", "IDX", "N_ERR", "NavState"]
 
-AERO_PARAMS: Final = ("alpha_bias_rad", "beta_bias_rad", "airspeed_scale", "cx_bias", "cz_scale", "thrust_scale")
+AERO_PARAMS: Final = (
+    "alpha_bias_rad", "beta_bias_rad", "airspeed_scale", "cx_bias", "cy_bias", "cz_scale", "thrust_scale",
+)  # fmt: skip
 """Model correction parameters: the port air data's angle offsets (installation, rigging), the air-data
-speed scale (pitot or ports, whichever the mode fuses), a drag-coefficient bias and a lift-coefficient
-scale (the as-built aircraft's skin friction and rigging), and the installed thrust factor."""
+speed scale (pitot or ports, whichever the mode fuses), a drag-coefficient bias, a side-force-coefficient
+bias and a lift-coefficient scale (the as-built aircraft's skin friction, rigging and port installation),
+and the installed thrust factor."""
 AERO_PRIOR: Final = {
     # (nominal, 1σ): what a user knows before flight. Angles: ports within ±2° of their design location's
     # flow angle; speed scale: pitot/port calibration within 5 %; CX bias: drag build-up within 0.01 (about
@@ -50,6 +53,9 @@ AERO_PRIOR: Final = {
     "beta_bias_rad": (0.0, 0.035),
     "airspeed_scale": (1.0, 0.05),
     "cx_bias": (0.0, 0.01),
+    # CY bias: what a port installation's β offset (the prior above) makes of a side-force slope of
+    # ~0.3 /rad, or a fin rigged a degree off; the DEIM coefficients read β from the same ports
+    "cy_bias": (0.0, 0.01),
     "cz_scale": (1.0, 0.1),
     "thrust_scale": (1.0, 0.2),
 }
