@@ -73,11 +73,12 @@ def test_the_product_mode_holds_its_heading_through_an_outage_on_a_deviated_comp
     limit, a motor field of 20 % of the Earth's at full throttle); a 50 s outage after 150 s of aided
     flight. Without the deviation the magnetometer turns the heading as the aircraft turns.
 
-    The bars come from twelve deviation draws (seeds 11–22, 2026-12-01), on main's code and on the code with the
-    side-force bias alike: the heading's rms with the deviation over without it was 0.74 and 0.75 pooled, from
-    0.49 to 2.4 per draw (the bar had been 0.6, which 2 of the 12 draws met on main's code, this one at 0.59); the
-    position's at the outage's end 0.61–0.77 on every draw. So: this draw's heading under 0.8× and its position
-    under 0.8×."""
+    The bars come from twelve deviation draws (seeds 11–22, 2026-12-01). Before the gyro's scale states and the
+    looser aided compass that came with them: the heading's rms with the deviation over without it 0.74 pooled,
+    0.49–2.4 per draw; the position's at the outage's end 0.61–0.77. With them: the heading 0.73 pooled (0.70° against
+    0.95°; 0.66–1.29 per draw), the position 0.75–0.88 on every draw (this one 0.81): the medians went 47 → 56 m
+    with the deviation and 75 → 69 m without it (the looser aided compass's cost on this kind flight,
+    docs/navigation.md). So: this draw's heading under 0.8× and its position under 0.9×."""
     rng = np.random.default_rng(11)
     s = rng.uniform(-0.03, 0.03, (3, 3))
     motor_t = np.array([0.6, -0.5, 0.62]) * 0.2 * 50e-6
@@ -98,4 +99,4 @@ def test_the_product_mode_holds_its_heading_through_an_outage_on_a_deviated_comp
     assert runner.filters["vdm"].mag_deviation is not None and runner.filters["vdm"].mag_deviation.ready
     assert with_dev < 0.8 * without, (with_dev, without)
     e_dev, e_without = (_h_error(world, runner.filters[k], t1 - 1.0) for k in ("vdm", "vdm-no-deviation"))
-    assert e_dev < 0.8 * e_without, (e_dev, e_without)
+    assert e_dev < 0.9 * e_without, (e_dev, e_without)

@@ -102,7 +102,9 @@ def _run(rng: np.random.Generator, mode: str = "ins", delayed: bool = False, sky
     g_gnss = sky * rng.normal(0.0, [noise.gnss_sigma_ne_m, noise.gnss_sigma_ne_m, noise.gnss_sigma_d_m])
     white = np.array([cfg.gnss_pos_sigma_ne_m, cfg.gnss_pos_sigma_ne_m, cfg.gnss_pos_sigma_d_m])
     acc = (math.hypot(white[0], noise.gnss_sigma_ne_m) * sky, math.hypot(white[2], noise.gnss_sigma_d_m) * sky)
-    f.x = truth0.plus(rng.normal(0.0, sig0) * (np.arange(N_ERR) < 9))  # the filter starts off the truth
+    dx0 = np.zeros(N_ERR)
+    dx0[:9] = rng.normal(0.0, sig0[:9])  # the filter starts off the truth in its pose (the other states at nominal)
+    f.x = truth0.plus(dx0)
     f.x.b_baro_m = 0.0
     dt = 1.0 / RATE_HZ
     nees = []

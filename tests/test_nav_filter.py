@@ -487,7 +487,8 @@ def _every_stream_cut(sensors: dict[str, np.ndarray], t0: float, hole_s: float) 
 def test_the_baselines_fuse_the_compass_with_ekf3s_noise(world: dict[str, Any], monkeypatch: pytest.MonkeyPatch
                                                         ) -> None:  # fmt: skip
     """The modes that stand for the autopilot fuse every compass sample with ArduPilot EKF3's EK3_MAG_M_NSE
-    (0.05 gauss = 5 µT); the project's modes with NavConfig's σ."""
+    (0.05 gauss = 5 µT); the project's modes with NavConfig's σ, but `vdm` only in an outage: while GNSS aids it
+    fuses the compass at EKF3's σ too, so that GNSS teaches its gyro-scale states (ModeSpec.mag_sigma_aided_ut)."""
     import vdm_aero.nav.filter as nav_filter
 
     seen: list[float] = []
@@ -498,10 +499,18 @@ def test_the_baselines_fuse_the_compass_with_ekf3s_noise(world: dict[str, Any], 
             seen.append(self.sigma_ut)
 
     monkeypatch.setattr(nav_filter, "MagField", Spy)
-    for mode, sigma in (("ins", 5.0), ("airspeed-dr", 5.0), ("vdm-classic", 1.5), ("vdm", 1.5)):
+    for mode, sigma in (("ins", 5.0), ("airspeed-dr", 5.0), ("vdm-classic", 1.5), ("vdm", 5.0)):
         seen.clear()
         _runner(world, (mode,)).run_until(40.0)
         assert len(seen) > 100 and set(seen) == {sigma}, (mode, len(seen), set(seen))
+    seen.clear()
+    runner = _runner(world, ("vdm",))
+    runner.block_gnss(40.0, 61.0)
+    runner.run_until(43.0)  # the outage declared once the fixes are late (GNSS_TIMEOUT_S)
+    assert runner.filters["vdm"].in_outage
+    seen.clear()
+    runner.run_until(60.0)
+    assert len(seen) > 100 and set(seen) == {1.5}, (len(seen), set(seen))
 
 
 def test_a_long_link_hole_in_a_turn_takes_its_rotation_from_the_autopilots_attitude(world: dict[str, Any]) -> None:

@@ -44,6 +44,7 @@ def _state(rng: np.random.Generator) -> NavState:
     x.aero = np.array([0.01, -0.01, 1.03, 0.004, -0.003, 0.95, 0.9]) + rng.normal(0.0, 0.01, len(AERO_PARAMS))
     x.gnss_lag_s = float(rng.normal(0.0, 0.05))
     x.wind_gradient_ne_per_s = rng.normal(0.0, 0.01, 2)
+    x.gyro_m_err_b = rng.normal(0.0, 0.01, (3, 3))
     return x
 
 
@@ -119,8 +120,9 @@ def test_ins_transition_matches_finite_differences() -> None:
 
 def test_ins_transition_is_the_second_order_series_of_its_error_dynamics() -> None:
     """The block-by-block Φ equals I + FΔt + ½(FΔt)² with F assembled densely from the error dynamics of the
-    module docstring (δv̇ = −Ĉ[f×]δθ − Ĉδb_a, δθ̇ = −[ω×]δθ − δb_g, Gauss–Markov GNSS error and gust, the
-    horizontal wind following its gradient with height: δẇ_NE = −G·δv_D − v_D·δG)."""
+    module docstring (δv̇ = −Ĉ[f×]δθ − Ĉδb_a, δθ̇ = −[ω×]δθ − (I − δM)δb_g − δM'·u with u the rate less the
+    bias and δM' the scale and cross-axis errors' error, Gauss–Markov GNSS error and gust, the horizontal wind
+    following its gradient with height: δẇ_NE = −G·δv_D − v_D·δG)."""
     from vdm_aero.atmosphere import G0_M_S2
     from vdm_aero.nav.ins import skew
     from vdm_aero.nav.state import IDX
@@ -131,14 +133,18 @@ def test_ins_transition_is_the_second_order_series_of_its_error_dynamics() -> No
     for dt in (0.02, 0.0025, 0.02):  # Δt changes and comes back: the cached diagonal follows it
         x = _state(rng)
         u = ImuIncrement(rng.normal(0.0, 0.5, 3) * dt, (np.array([0.0, 0.0, -9.8]) + rng.normal(0, 2, 3)) * dt, dt)
-        f_b, w_b = u.dvel_b / dt - x.b_accel_b, u.dtheta_b / dt - x.b_gyro_b
+        f_b, u_b = u.dvel_b / dt - x.b_accel_b, u.dtheta_b / dt - x.b_gyro_b
+        w_b = u_b - x.gyro_m_err_b @ u_b
         c = dcm_from_quat(quat_multiply(x.q_nb, quat_exp(0.5 * w_b * dt)))
         f = np.zeros((N_ERR, N_ERR))
         f[IDX["p"], IDX["v"]] = np.eye(3)
         f[IDX["v"], IDX["theta"]] = -c @ skew(f_b)
         f[IDX["v"], IDX["ba"]] = -c
         f[IDX["theta"], IDX["theta"]] = -skew(w_b)
-        f[IDX["theta"], IDX["bg"]] = -np.eye(3)
+        f[IDX["theta"], IDX["bg"]] = -(np.eye(3) - x.gyro_m_err_b)
+        for i in range(3):  # ∂(δM·u)_i/∂δM[i, j] = u_j; the states hold δM row by row
+            for j in range(3):
+                f[IDX["theta"].start + i, IDX["gm"].start + 3 * i + j] = -u_b[j]
         f[IDX["gnss"], IDX["gnss"]] = -np.eye(3) / ins.noise_densities.gnss_tau_s
         f[IDX["gust"], IDX["gust"]] = -np.diag(1.0 / np.asarray(ins.noise_densities.gust_tau_s))
         wind_ne = slice(IDX["wind"].start, IDX["wind"].start + 2)

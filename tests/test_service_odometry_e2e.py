@@ -44,11 +44,16 @@ def test_the_autopilot_flies_the_outage_on_the_services_odometry(
     v = mock["odometry_outage_verdicts"]
     came = sum(v.values())
     assert v.get("used", 0) >= 0.9 * came and came >= 0.9 * 5.0 * (b - a), v
-    # EKF3 follows ExternalNav: at the outage's end the mock's estimate is where the service put it, not where
-    # its own dead reckoning would be (the service's own error at that moment, within the ODOMETRY noise)
+    # EKF3 follows ExternalNav: at the outage's end the mock's estimate is near where the service put it, not where
+    # its own dead reckoning would be. Near: within half the σ the service reported, which is the posErr EKF3 weighs
+    # the ODOMETRY's position with; its velocity (VISO_VEL_M_NSE, 0.1 m/s) it follows closer, so a service whose
+    # error grows fast at the end (25 m in the last 8 s here) is trailed. Measured on this flight (2026-12-01): the
+    # service 37.8 m (σ 26.4 m) and the mock 27.7 m; with vdm's gyro-scale states 30.8 m (σ 28.6 m) and 17.4 m. A
+    # mock that ignored the service would be at its own dead reckoning's 3.8 m, 27 m off
     end = mock["outage_end_errors"][0]
-    own = score_service(res)["final_error_m"]
-    assert abs(end["with_service_m"] - own) <= 0.25 * own + 3.0, (end, own)
+    score = score_service(res)
+    own, sigma = score["final_error_m"], score["sigma_h_end_m"]
+    assert abs(end["with_service_m"] - own) <= 0.5 * sigma, (end, own, sigma)
     # the product mode fused each of its air-data sources all flight, and the FDI excluded none of them in
     # this healthy flight (a false alarm would show as an exclusion)
     health = svc["health"]

@@ -146,8 +146,14 @@ class ModeSpec:
     # in an outage the compass at EKF3's σ once its innovations while GNSS aided it, since the swing's correction
     # applies, showed more than its tilt can be held with (vdm_aero.nav.compass_consistency.AidedCompassFit)
     compass_aided_fit: bool = False
+    # the gyro's scale and cross-axis errors as states (vdm_aero.nav.state), learnt while GNSS aids through turns
+    gyro_m_err: bool = False
     # the compass's 1σ [µT] when the mode stands for the autopilot's own filter (None: NavConfig.mag_sigma_ut)
     mag_sigma_ut: float | None = None
+    # the compass's 1σ [µT] while GNSS aids, when looser than in an outage: with the gyro's scale states, GNSS
+    # through the turns is the heading's teacher, and a compass held at 1.5 µT would teach them its residual
+    # deviation instead (docs/navigation.md, "The gyro's scale and cross-axis errors")
+    mag_sigma_aided_ut: float | None = None
     description: str = ""
 
     def force_model(self, available: Collection[str]) -> str | None:
@@ -205,8 +211,11 @@ MODES: Final = {
         compass_check=True,
         compass_throttle_range=True,
         compass_aided_fit=True,
+        gyro_m_err=True,
+        mag_sigma_aided_ut=EKF3_MAG_SIGMA_UT,
         description="the product: pitot + port air data + force model, air-data FDI, wind relearnt with its "
-        "gradient with height, compass deviation learnt in flight, the compass's heading alone in an outage once "
+        "gradient with height, the gyro's scale and cross-axis errors and the compass deviation learnt in flight, "
+        "the compass at EKF3's σ while GNSS aids, the compass's heading alone in an outage once "
         "its field's strength is off or the throttle is held outside what the deviation was learnt on, and at "
         "EKF3's σ once its innovations while GNSS aided were past what the tilt can be held with",
     ),
@@ -221,6 +230,9 @@ ABLATIONS: Final = {
     "vdm-no-pitot": replace(_VDM, pitot=False, description="ablation: vdm without the pitot"),
     "vdm-no-deviation": replace(_VDM, mag_deviation=False,
                                 description="ablation: vdm without the compass deviation learnt in flight"),
+    "vdm-no-gyro-scale": replace(_VDM, gyro_m_err=False, mag_sigma_aided_ut=None,
+                                 description="ablation: vdm without the gyro's scale and cross-axis error states "
+                                 "(and the looser aided compass that goes with them)"),
     "vdm-no-gradient": replace(_VDM, wind_gradient=False,
                                description="ablation: vdm without the wind's gradient with height (WIND_PSCALE)"),
     # not an ablation but the variant measured against it (docs/navigation.md, "The compass's heading alone")
@@ -315,6 +327,12 @@ class NavConfig:
     imu_point_samples: bool = False
     # turn-on bias priors: 1.2× the IMU part's board-level initial tolerance (IMU_DATASHEETS)
     gyro_bias_sigma_rad_s: float = math.radians(0.6)
+    # the gyro's scale and cross-axis errors δM (1σ, dimensionless): the fleet's parts allow ±0.5–1 % of
+    # sensitivity and ±1–1.25 % of cross-axis (TDK DS-000347 tables 1–2, Bosch BST-BMI088-DS000 tables 4–5),
+    # uniform within: tolerance/√3 at the larger; the level calibration (ArduPilot AHRS_TRIM) turns the gyro with
+    # the accelerometer by up to the latter's ±1 % cross-axis, which adds to the gyro's own off the diagonal
+    gyro_scale_sigma: float = 0.01 / math.sqrt(3.0)
+    gyro_cross_axis_sigma: float = math.hypot(0.0125, 0.01) / math.sqrt(3.0)
     accel_bias_sigma_m_s2: float = 0.25
 
     @classmethod
@@ -430,8 +448,10 @@ class TurbulenceIntensity:
 class NavFilter:
     """The VDM navigation filter in one mode (module docstring)."""
 
-    def __init__(self, mode: str, config: NavConfig, derivatives: StabilityDerivatives | None = None) -> None:
-        self.spec = mode_spec(mode)
+    def __init__(self, mode: str, config: NavConfig, derivatives: StabilityDerivatives | None = None, *,
+                 spec: ModeSpec | None = None) -> None:  # fmt: skip
+        """``spec``: a variant of the mode for research (the benchmark's ablations are named modes)."""
+        self.spec = spec or mode_spec(mode)
         self.mode = mode
         if self.spec.force == "classic" and derivatives is None:
             raise ValueError("vdm-classic needs the stability derivatives of the design data set")
@@ -464,7 +484,7 @@ class NavFilter:
         self._next_aid: dict[str, float] = {}
         self._last_rejected_s: dict[str, float] = {}
         self._consider = np.zeros(N_ERR, dtype=bool)
-        for k in ("wind", "bm", "baro", "gnss", "aero", "lag", "wg"):
+        for k in ("wind", "bm", "baro", "gnss", "aero", "lag", "wg", "gm"):
             self._consider[IDX[k]] = True
         self._wind_live = self._consider.copy()
         self._wind_live[IDX["wind"]] = False
@@ -483,6 +503,8 @@ class NavFilter:
             self.process.wind_height_rate_scale = WIND_PSCALE
         if not self.spec.wind_gradient:
             self.process.freeze_wind_gradient()
+        if not self.spec.gyro_m_err:
+            self.process.freeze_gyro_m_err()
         # (t [s], V [m/s], σ_V [m/s], α [rad], the usable ports' mask as bytes, α inside the airspeed table)
         self._ports_speed: tuple[float, float, float, float, bytes, bool] | None = None
         self.fallback = False
@@ -570,6 +592,10 @@ class NavFilter:
             # the wind's change per 100 m of height (N, E) [m/s], as learnt (the modes that carry it)
             "wind_gradient_m_s_per_100m": None if self.x is None or not self.spec.wind_gradient else [
                 round(100.0 * float(g), 2) for g in self.x.wind_gradient_ne_per_s],
+            # the gyro's scale and cross-axis errors δM [%], row by row, as learnt in the aided turns (the modes that
+            # carry them; not kept across a restart: they are learnt again in the turns of a few minutes' flight)
+            "gyro_scale_misalignment_pct": None if self.x is None or not self.spec.gyro_m_err else [
+                round(100.0 * float(m), 2) for m in self.x.gyro_m_err_b.ravel()],
             # the receiver's latency the fixes' stamps miss (true − assumed), as learnt in the turns, and its 1σ
             "gnss_lag_error_ms": None if self.x is None else [
                 round(1e3 * self.x.gnss_lag_s, 1), round(1e3 * math.sqrt(max(self.P[lag, lag], 0.0)), 1)],
@@ -609,6 +635,9 @@ class NavFilter:
         sig[IDX["aero"]] = [AERO_PRIOR[k][1] for k in AERO_PARAMS]
         sig[IDX["lag"]] = self.config.gnss_latency_sigma_s
         sig[IDX["wg"]] = self.config.wind_gradient_sigma_per_s  # inert where the mode leaves it out of the dynamics
+        sig[IDX["gm"]] = np.where(
+            np.eye(3, dtype=bool), self.config.gyro_scale_sigma, self.config.gyro_cross_axis_sigma
+        ).ravel()  # likewise
         self.engine = EkfEngine(np.diag(sig**2))
         self.t_s = t_s
         self._t_init_s = t_s
@@ -1125,6 +1154,8 @@ class NavFilter:
         field_ned = self.config.mag_field_ned_ut
         sigma = self.config.mag_sigma_ut if self.spec.mag_sigma_ut is None else self.spec.mag_sigma_ut
         fit = self.compass_fit
+        if self.spec.mag_sigma_aided_ut is not None and not self.in_outage:
+            sigma = max(sigma, self.spec.mag_sigma_aided_ut)
         if fit is not None and self.in_outage and fit.refuted:
             # its aided innovations showed more than σ holds the tilt with: in the outage the compass is fused as
             # the autopilot fuses it (docs/navigation.md, "The compass's aided fit")

@@ -12,7 +12,10 @@ terms (Earth rate 7.3e-5 rad/s, transport rate, gravity change) are far below th
 bias state absorbs the Earth rate.
 
 Error-state dynamics (body-frame attitude error, q = q̂ ⊗ exp(δθ)):
-  δṗ = δv,  δv̇ = −Ĉ[f̂×]δθ − Ĉδb_a − Ĉn_a,  δθ̇ = −[ω̂×]δθ − δb_g − n_g,
+  δṗ = δv,  δv̇ = −Ĉ[f̂×]δθ − Ĉδb_a − Ĉn_a,  δθ̇ = −[ω̂×]δθ − (I − δM̂)δb_g − U·δm − n_g,
+  with the gyro read as (I + δM)·ω + b and corrected as ω̂ = (I − δM̂)(ω_m − b̂) (first order in the 1 % of δM),
+  δm = δM row by row and U·δm = δM·(ω_m − b̂) (U = I ⊗ (ω_m − b̂)ᵀ); δM a random walk (where a mode leaves it
+  out of the dynamics, δM̂ = 0 and the terms vanish),
   biases, wind, magnetometer and baro offsets and aero parameters: random walks; the GNSS position error:
   first-order Gauss–Markov; the horizontal wind follows its gradient with height G as the aircraft climbs or
   descends, ẇ_NE = −G·v_D, so δẇ_NE = −G·δv_D − v_D·δG (the nominal v_D at mid-step, as the attitude).
@@ -69,6 +72,9 @@ class ProcessNoise:
     # the wind's gradient with height: the profile changes with the terrain and the time of day, over kilometres
     # and tens of minutes: ~10 % of its prior (NavConfig.wind_gradient_sigma_per_s) in 10 minutes
     wind_gradient_per_s_sqrt_s: float = 4.0e-5
+    # the gyro's scale and cross-axis errors move with the board's temperature (a few 0.01 %/K in MEMS data
+    # sheets' sensitivity change over temperature): 0.1 % in 10 minutes
+    gyro_m_err_per_sqrt_s: float = 4.0e-5
     # turbulence: MIL-F-8785C low-altitude light-to-moderate intensities (σ_u,v ≈ 1.5, σ_w ≈ 1 m/s at
     # 100 m) and correlation times L/V (L_u ≈ 250 m at 18 m/s; L_w = h ≈ 100 m)
     gust_sigma_m_s: tuple[float, float, float] = (1.5, 1.5, 1.0)
@@ -81,6 +87,7 @@ _I2 = np.eye(2)
 _I2.flags.writeable = False
 _W = slice(IDX["wind"].start, IDX["wind"].start + 2)  # the horizontal wind's rows
 _WG = IDX["wg"]
+_GM = IDX["gm"]
 
 
 class InsProcess:
@@ -100,10 +107,12 @@ class InsProcess:
         q[IDX["aero"]] = np.square(n.aero_per_s)
         q[IDX["lag"]] = n.gnss_lag_s_per_sqrt_s**2
         q[IDX["wg"]] = n.wind_gradient_per_s_sqrt_s**2
+        q[IDX["gm"]] = n.gyro_m_err_per_sqrt_s**2
         q[IDX["gnss"]] = 2.0 / n.gnss_tau_s * np.square([n.gnss_sigma_ne_m, n.gnss_sigma_ne_m, n.gnss_sigma_d_m])
         self._gust_rate = 1.0 / np.asarray(n.gust_tau_s)
         self.wind_height_rate_scale = 0.0  # > 0: wind noise × (1 + scale·|ḣ|), EKF2/3's WIND_PSCALE
         self.wind_gradient = True  # the wind follows its gradient with height (freeze_wind_gradient: not)
+        self.gyro_m_err = True  # the gyro's scale and cross-axis errors correct it (freeze_gyro_m_err: not)
         self._qc = q
         self.set_gust_sigma(np.asarray(n.gust_sigma_m_s, dtype=np.float64))
         self._g = np.array([0.0, 0.0, G0_M_S2])
@@ -135,6 +144,20 @@ class InsProcess:
         self._qc[IDX["wg"]] = 0.0
         self.wind_gradient = False
 
+    def freeze_gyro_m_err(self) -> None:
+        """A mode that does not model the gyro's scale and cross-axis errors (the autopilots' EKFs do not): the
+        states leave the dynamics and stay at their prior, uncorrelated with everything."""
+        self._qc[_GM] = 0.0
+        self.gyro_m_err = False
+
+    def _rate_b(self, x: NavState, u: ImuIncrement) -> F64Array:
+        """The body rate [rad/s] the increment gives: less the bias, and less the scale and cross-axis errors
+        where the mode models them."""
+        w_b = u.dtheta_b / u.dt_s - x.b_gyro_b
+        if self.gyro_m_err:
+            w_b = w_b - x.gyro_m_err_b @ w_b
+        return np.asarray(w_b)
+
     def propagate(self, x: NavState, u: ImuIncrement) -> NavState:
         out = x.copy()
         self.propagate_inplace(out, u)
@@ -145,7 +168,7 @@ class InsProcess:
         x.b_gnss_ned *= math.exp(-dt / self.noise_densities.gnss_tau_s)
         x.gust_ned *= np.exp(-dt * self._gust_rate)
         c0 = dcm_from_quat(x.q_nb)
-        dth = u.dtheta_b - x.b_gyro_b * dt
+        dth = self._rate_b(x, u) * dt
         q = quat_multiply(x.q_nb, quat_exp(dth))
         x.q_nb = q / math.sqrt(float(q @ q))
         c1 = dcm_from_quat(x.q_nb)
@@ -160,12 +183,13 @@ class InsProcess:
         """Φ ≈ I + F·Δt + ½(F·Δt)², with the attitude at mid-step (as the mechanisation rotates Δv).
 
         F's non-zero blocks (p, v, θ, b_g, b_a at 0, 3, 6, 9, 12): F_pv = I, F_vθ = −Ĉ[f×], F_vba = −Ĉ,
-        F_θθ = −[ω×], F_θbg = −I, and the GNSS error's and the gust's decay on the diagonal. F² is written out
+        F_θθ = −[ω×], F_θbg = −(I − δM̂), F_θm = −U (the gyro's scale and cross-axis errors), and the GNSS error's
+        and the gust's decay on the diagonal. F² is written out
         block by block (F_pv·F_v•, F_vθ·F_θ•, F_θθ·F_θ•) instead of a dense 34×34 product: the profile's
         largest single cost of a step (docs/performance.md)."""
         dt = u.dt_s
         f_b = u.dvel_b / dt - x.b_accel_b
-        w_b = u.dtheta_b / dt - x.b_gyro_b
+        w_b = self._rate_b(x, u)
         c = dcm_from_quat(quat_multiply(x.q_nb, quat_exp(0.5 * w_b * dt)))
         if dt != self._phi_dt:  # the diagonal: 1 − aΔt + ½(aΔt)², constant while Δt is
             a = self._decay_rates * dt
@@ -183,6 +207,14 @@ class InsProcess:
         phi[3:6, 12:15] = -dt * c
         phi[6:9, 6:9] = _I3 - dt * wx + h * (wx @ wx)
         phi[6:9, 9:12] = -dt * _I3 + h * wx
+        if self.gyro_m_err:
+            a = _I3 - x.gyro_m_err_b
+            um = np.kron(_I3, u.dtheta_b / dt - x.b_gyro_b)  # U: δM·u = U·δm
+            th = -dt * _I3 + h * wx
+            phi[3:6, 9:12] = h * (cf @ a)
+            phi[6:9, 9:12] = th @ a
+            phi[3:6, _GM] = h * (cf @ um)
+            phi[6:9, _GM] = th @ um
         if not self.wind_gradient:
             return phi
         # the wind at the aircraft's height: ẇ_NE = −G·v_D, with v_D at mid-step (the rows' F² terms through δv_D)

@@ -19,7 +19,11 @@ Nominal state (SI, NED navigation frame about a local origin, FRD body frame):
 * ``gnss_lag_s`` the error of the receiver latency the fixes' times of validity assume [s] (true − assumed):
   a fix stamped t is valid at t − lag, so it reads p − v·lag and v − a·lag. The lag is fixed for a receiver
   and its link within tens of ms; treated as white noise per fix, it is averaged as if it were independent,
-  and through every turn its a·lag pulls roll, pitch and heading (the harsh world's ``gnss-latency``).
+  and through every turn its a·lag pulls roll, pitch and heading (the harsh world's ``gnss-latency``);
+* ``gyro_m_err_b`` the gyro's scale-factor and cross-axis errors δM (3 × 3, dimensionless): the gyro reads
+  (I + δM)·ω + b. MEMS data sheets allow ±0.5–1 % of scale and ±1–1.25 % of cross-axis sensitivity, and no
+  autopilot calibrates them; in a 20°/s turn they turn the tilt by 0.2–0.3°/s, which the bias states cannot
+  hold because it follows the rate, not the time (learnt while GNSS aids through the turns).
 
 The error state δx (:data:`N_ERR` components) is additive for every block except attitude, whose error
 is a body-frame rotation vector: q = q̂ ⊗ exp(δθ), the ⊕ of :mod:`vdm_aero.rotation`.
@@ -79,9 +83,10 @@ IDX: Final = {
     "aero": _block(28, len(AERO_PARAMS)),
     "lag": _block(28 + len(AERO_PARAMS), 1),
     "wg": _block(29 + len(AERO_PARAMS), 2),
+    "gm": _block(31 + len(AERO_PARAMS), 9),
 }
-"""Error-state slices by block name."""
-N_ERR: Final = 31 + len(AERO_PARAMS)
+"""Error-state slices by block name (``gm``: δM row by row, δM[i, j] at ``gm.start + 3 i + j``)."""
+N_ERR: Final = 40 + len(AERO_PARAMS)
 AERO_INDEX: Final = {name: 28 + i for i, name in enumerate(AERO_PARAMS)}
 """Error-state index of each aero parameter."""
 AERO_SLOT: Final = {name: i for i, name in enumerate(AERO_PARAMS)}
@@ -105,6 +110,7 @@ class NavState:
     aero: F64Array = field(default_factory=lambda: np.array([AERO_PRIOR[k][0] for k in AERO_PARAMS]))
     gnss_lag_s: float = 0.0
     wind_gradient_ne_per_s: F64Array = field(default_factory=lambda: np.zeros(2))
+    gyro_m_err_b: F64Array = field(default_factory=lambda: np.zeros((3, 3)))
 
     @property
     def air_motion_ned(self) -> F64Array:
@@ -116,6 +122,7 @@ class NavState:
             self.p_ned.copy(), self.v_ned.copy(), self.q_nb.copy(), self.b_gyro_b.copy(), self.b_accel_b.copy(),
             self.wind_ned.copy(), self.b_mag_b_ut.copy(), self.b_baro_m, self.b_gnss_ned.copy(),
             self.gust_ned.copy(), self.aero.copy(), self.gnss_lag_s, self.wind_gradient_ne_per_s.copy(),
+            self.gyro_m_err_b.copy(),
         )  # fmt: skip
 
     def plus(self, dx: F64Array) -> NavState:
@@ -140,6 +147,7 @@ class NavState:
         self.aero += dx[IDX["aero"]]
         self.gnss_lag_s += float(dx[IDX["lag"]][0])
         self.wind_gradient_ne_per_s += dx[IDX["wg"]]
+        self.gyro_m_err_b += dx[IDX["gm"]].reshape(3, 3)
 
     def minus(self, other: NavState) -> F64Array:
         """x ⊖ y: the error state δx with y ⊕ δx = x."""
@@ -159,5 +167,6 @@ class NavState:
                 self.aero - other.aero,
                 [self.gnss_lag_s - other.gnss_lag_s],
                 self.wind_gradient_ne_per_s - other.wind_gradient_ne_per_s,
+                (self.gyro_m_err_b - other.gyro_m_err_b).ravel(),
             ]
         )
