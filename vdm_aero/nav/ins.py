@@ -185,7 +185,7 @@ class InsProcess:
         F's non-zero blocks (p, v, θ, b_g, b_a at 0, 3, 6, 9, 12): F_pv = I, F_vθ = −Ĉ[f×], F_vba = −Ĉ,
         F_θθ = −[ω×], F_θbg = −(I − δM̂), F_θm = −U (the gyro's scale and cross-axis errors), and the GNSS error's
         and the gust's decay on the diagonal. F² is written out
-        block by block (F_pv·F_v•, F_vθ·F_θ•, F_θθ·F_θ•) instead of a dense 34×34 product: the profile's
+        block by block (F_pv·F_v•, F_vθ·F_θ•, F_θθ·F_θ•) instead of a dense N_ERR × N_ERR product: the profile's
         largest single cost of a step (docs/performance.md)."""
         dt = u.dt_s
         f_b = u.dvel_b / dt - x.b_accel_b
