@@ -1,18 +1,20 @@
 """What survives a restart of the service: the filter's slow states, and the navigation output log.
 
 **Filter state** (:class:`FilterStateStore`): the wind, the gyro/accelerometer biases, the magnetometer
-and baro offsets, the model-correction parameters (by name) and their covariance block, and the measured
-turbulence; saved atomically (temporary file, fsync, rename) periodically and on SIGTERM. A restarted
-service initialises position, velocity and attitude from the first GNSS fix as always, then takes the
-saved slow states; their covariance is doubled in σ (the aircraft may have been powered down and the
-biases moved), and a wind older than :data:`WIND_MAX_AGE_S` is not restored. What is restored is checked
+and baro offsets, the model-correction parameters (by name), the gyro's scale and cross-axis errors δM, their
+covariance block, and the measured turbulence; saved atomically (temporary file, fsync, rename) periodically
+and on SIGTERM. A restarted service initialises position, velocity and attitude from the first GNSS fix as
+always, then takes the saved slow states; their covariance is doubled in σ (the aircraft may have been powered
+down and the biases moved), and a wind older than :data:`WIND_MAX_AGE_S` is not restored. What is restored is checked
 against what was saved:
 
 * the model corrections only into the same mode with the same models (their sha256 identity): they correct
   the models they were estimated with, and mean nothing to others;
 * the IMU biases keep their saved values but get their turn-on σ back when the autopilot has booted since
   the save (its boot instant, wall clock less boot time, moved by more than :data:`BOOT_MATCH_S`): a power
-  cycle redraws the turn-on biases and the autopilot measured new gyro offsets at boot.
+  cycle redraws the turn-on biases and the autopilot measured new gyro offsets at boot;
+* δM only into a mode that estimates it, from a mode that did (format 4 on): it is the gyro's, whatever the
+  mode and the models, and a power cycle does not redraw it (:data:`~vdm_aero.nav.filter.SLOW_STATES`).
 
 **Navigation log** (:class:`NavLog`): an append-only CSV of the solution, rotated by size
 (``logging.handlers.RotatingFileHandler``).
@@ -34,11 +36,12 @@ import numpy as np
 
 from vdm_aero.errors import UserInputError
 from vdm_aero.nav.filter import NavFilter, slow_index
-from vdm_aero.nav.state import AERO_PARAMS, AERO_PRIOR
+from vdm_aero.nav.state import AERO_PARAMS, AERO_PRIOR, IDX
 
 __all__ = ["NAV_LOG_COLUMNS", "FilterStateStore", "NavLog"]
 
-FORMAT = "vdm-aero-filter-state/3"
+FORMAT = "vdm-aero-filter-state/4"
+FORMAT_V3 = "vdm-aero-filter-state/3"  # without δM (before 2026-12-01's twenty-ninth session)
 FORMAT_V2 = "vdm-aero-filter-state/2"  # without the aero parameters' names: those of AERO_PARAMS_V2
 FORMAT_V1 = "vdm-aero-filter-state/1"  # without mode/models/boot checks: read, restored as from another boot
 AERO_PARAMS_V2 = ("alpha_bias_rad", "beta_bias_rad", "airspeed_scale", "cx_bias", "cz_scale", "thrust_scale")
@@ -46,6 +49,8 @@ AERO_PARAMS_V2 = ("alpha_bias_rad", "beta_bias_rad", "airspeed_scale", "cx_bias"
 WIND_MAX_AGE_S = 600.0
 RESTORE_SIGMA_FACTOR = 2.0
 BOOT_MATCH_S = 5.0  # wall clock against the autopilot's boot time: NTP steps and link latency stay below
+_N_GM = IDX["gm"].stop - IDX["gm"].start
+_N_BEFORE_AERO = len(slow_index()) - len(AERO_PARAMS) - _N_GM  # SLOW_STATES ends with the aero block, then δM
 
 
 class FilterStateStore:
@@ -67,7 +72,8 @@ class FilterStateStore:
         gust = np.asarray(f.process.gust_sigma_m_s)
         np.savez(buf, format=np.array(FORMAT), mode=np.array(f.mode), saved_unix_s=np.array(time.time()),
                  values=values, cov=cov, gust_sigma_m_s=gust, models_id=np.array(models_id),
-                 autopilot_boot_unix_s=np.array(autopilot_boot_unix_s), aero_params=np.array(AERO_PARAMS))  # fmt: skip
+                 autopilot_boot_unix_s=np.array(autopilot_boot_unix_s), aero_params=np.array(AERO_PARAMS),
+                 gm_estimated=np.array(f.spec.gyro_m_err))  # fmt: skip
         self.path.parent.mkdir(parents=True, exist_ok=True)
         tmp = self.path.with_name(f".{self.path.name}.tmp")
         try:
@@ -92,14 +98,16 @@ class FilterStateStore:
         except (OSError, ValueError) as e:
             raise UserInputError(f"{self.path}: not a filter state file ({e}); delete it to start afresh") from None
         fmt = str(d.get("format"))
-        if fmt not in (FORMAT, FORMAT_V2, FORMAT_V1) or "values" not in d or "cov" not in d:
+        if fmt not in (FORMAT, FORMAT_V3, FORMAT_V2, FORMAT_V1) or "values" not in d or "cov" not in d:
             raise UserInputError(f"{self.path}: not a {FORMAT} file; delete it to start afresh")
         names = tuple(str(a) for a in d["aero_params"]) if "aero_params" in d else AERO_PARAMS_V2
-        n_saved = len(slow_index()) - len(AERO_PARAMS) + len(names)
+        has_gm = fmt == FORMAT
+        n_saved = _N_BEFORE_AERO + len(names) + (_N_GM if has_gm else 0)
         shapes = d["values"].shape == (n_saved,) and d["cov"].shape == (n_saved, n_saved)
         if not shapes or not set(names) <= set(AERO_PARAMS):
             raise UserInputError(f"{self.path}: not a {FORMAT} file; delete it to start afresh")
-        d["values"], d["cov"] = _to_current_aero(d["values"], d["cov"], names)
+        d["values"], d["cov"] = _to_current_layout(d["values"], d["cov"], names, has_gm=has_gm)
+        d["gm_estimated"] = has_gm and bool(d.get("gm_estimated", False))
         return d
 
     @staticmethod
@@ -115,8 +123,9 @@ class FilterStateStore:
         boot = float(saved.get("autopilot_boot_unix_s", math.nan))
         same_boot = abs(boot - autopilot_boot_unix_s) <= BOOT_MATCH_S  # False when either is unknown (NaN)
         cov = np.asarray(saved["cov"], dtype=np.float64) * RESTORE_SIGMA_FACTOR**2
+        keep_gm = bool(saved.get("gm_estimated", False)) and f.spec.gyro_m_err
         restored = f.restore_slow_states(np.asarray(saved["values"], dtype=np.float64), cov, keep_wind=keep_wind,
-                                         keep_aero=same_models)  # fmt: skip
+                                         keep_aero=same_models, keep_gm=keep_gm)  # fmt: skip
         if not same_models:
             restored.append("-aero")
         if not same_boot:
@@ -128,15 +137,18 @@ class FilterStateStore:
         return restored
 
 
-def _to_current_aero(values: np.ndarray, cov: np.ndarray, names: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
-    """Slow states saved with the aero parameters ``names`` (the last block of :func:`slow_index`) in the
-    layout of :data:`AERO_PARAMS`: a parameter the file does not hold starts at its prior, uncorrelated,
-    so that an upgrade that adds one keeps every state the file does hold."""
-    n_other = len(values) - len(names)
+def _to_current_layout(values: np.ndarray, cov: np.ndarray, names: tuple[str, ...], *, has_gm: bool
+                       ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Slow states saved with the aero parameters ``names`` (with δM after them when ``has_gm``) in today's layout
+    of :func:`slow_index`: a parameter the file does not hold starts at its prior, uncorrelated, so that an upgrade
+    that adds one keeps every state the file does hold; a δM the file does not hold is zero with no covariance,
+    and is not restored (``gm_estimated`` is false)."""
+    n_other = _N_BEFORE_AERO
     src = list(range(n_other)) + [n_other + names.index(k) if k in names else -1 for k in AERO_PARAMS]
+    src += [n_other + len(names) + j if has_gm else -1 for j in range(_N_GM)]
     prior = np.array([AERO_PRIOR[k] for k in AERO_PARAMS])
-    out_v = np.concatenate([values[:n_other], prior[:, 0]])
-    out_c = np.diag(np.concatenate([np.zeros(n_other), np.square(prior[:, 1])]))
+    out_v = np.concatenate([values[:n_other], prior[:, 0], np.zeros(_N_GM)])
+    out_c = np.diag(np.concatenate([np.zeros(n_other), np.square(prior[:, 1]), np.zeros(_N_GM)]))
     have = np.array([i for i, j in enumerate(src) if j >= 0])
     take = np.array([src[i] for i in have])
     out_v[have] = values[take]

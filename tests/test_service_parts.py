@@ -356,7 +356,7 @@ def test_a_state_file_saved_before_an_aero_parameter_was_added_keeps_its_states(
     covariance, the new parameter starts at its prior."""
     from firmware_bridge.persist import AERO_PARAMS_V2, FORMAT_V2, FilterStateStore
     from vdm_aero.nav.filter import NavConfig, NavFilter, slow_index
-    from vdm_aero.nav.state import AERO_PARAMS, AERO_PRIOR
+    from vdm_aero.nav.state import AERO_PARAMS, AERO_PRIOR, IDX
     from vdm_aero.vehicle import load_vehicle
 
     cfg = NavConfig(vehicle=load_vehicle("uav-2m"), origin_alt_m=50.0, mag_field_ned_ut=np.array([20.1, -4.9, 46.5]))
@@ -366,7 +366,9 @@ def test_a_state_file_saved_before_an_aero_parameter_was_added_keeps_its_states(
     store = FilterStateStore(tmp_path / "filter-state.npz")
     assert store.save(a, models_id="m1")
     values, cov = a.slow_states()
-    n_other = len(slow_index()) - len(AERO_PARAMS)
+    n_gm = IDX["gm"].stop - IDX["gm"].start
+    n_other = len(slow_index()) - len(AERO_PARAMS) - n_gm  # the aero block, then δM (format 4), end the vector
+    values, cov = values[:-n_gm], cov[:-n_gm, :-n_gm]  # formats 1-3 held no δM
     rng = np.random.default_rng(3)
     values = values + rng.normal(0.0, 0.01, len(values))
     m = rng.normal(size=(len(values), len(values)))
@@ -377,9 +379,10 @@ def test_a_state_file_saved_before_an_aero_parameter_was_added_keeps_its_states(
     old.update(format=np.array(FORMAT_V2), values=values[keep], cov=cov[np.ix_(keep, keep)])
     np.savez(store.path, **old)
     saved = store.load()
-    assert saved is not None
-    got_v, got_c = saved["values"], saved["cov"]
+    assert saved is not None and not saved["gm_estimated"]
+    got_v, got_c = saved["values"][:-n_gm], saved["cov"][:-n_gm, :-n_gm]
     assert got_v.shape == values.shape and got_c.shape == cov.shape
+    assert not np.any(saved["values"][-n_gm:]) and not np.any(saved["cov"][-n_gm:])  # δM: none, not restored
     for i, k in enumerate(AERO_PARAMS):
         j = n_other + i
         if k in AERO_PARAMS_V2:
@@ -394,6 +397,72 @@ def test_a_state_file_saved_before_an_aero_parameter_was_added_keeps_its_states(
     b.initialise(0.0, np.zeros(3), np.array([20.0, 0.0, 0.0]), f_b, mag)
     restored = FilterStateStore.restore(b, saved, models_id="m1")
     assert restored == ["bg", "ba", "wind", "bm", "baro", "aero", "-bias-sigma"]
+
+
+def test_the_gyros_scale_errors_outlive_a_restart_a_reboot_and_a_dropped_pose(tmp_path: Path) -> None:
+    """δM is learnt only in turns while GNSS aids; it is the gyro's, so a service restart (into any mode that
+    estimates it, even after a power cycle), an autopilot reboot and a long IMU gap keep it. A mode that does not
+    estimate it neither gives nor takes it, and a state file from before δM (format 3) leaves it at its prior."""
+    from firmware_bridge.persist import FORMAT_V3, FilterStateStore
+    from vdm_aero.nav.filter import NavConfig, NavFilter
+    from vdm_aero.nav.state import IDX
+    from vdm_aero.vehicle import load_vehicle
+
+    cfg = NavConfig(vehicle=load_vehicle("uav-2m"), origin_alt_m=50.0, mag_field_ned_ut=np.array([20.1, -4.9, 46.5]))
+    f_b, mag, v0 = np.array([0.0, 0.0, -9.80665]), np.array([20.1, -4.9, 46.5]), np.array([20.0, 0.0, 0.0])
+    gm = IDX["gm"]
+    m = np.array([[0.004, 0.002, -0.001], [-0.003, -0.005, 0.0015], [0.001, 0.0025, 0.006]])  # a learnt δM
+
+    def flown(mode: str) -> NavFilter:
+        f = NavFilter(mode, cfg)
+        f.initialise(0.0, np.zeros(3), v0, f_b, mag)
+        assert f.x is not None and f.engine is not None
+        f.x.gyro_m_err_b = m.copy()
+        f.engine.P[gm, gm] = np.diag(np.full(9, 1e-6))  # σ 1e-3: learnt, tighter than its prior
+        return f
+
+    def fresh(mode: str) -> NavFilter:
+        f = NavFilter(mode, cfg)
+        f.initialise(0.0, np.array([5.0, 5.0, 0.0]), v0, f_b, mag)
+        return f
+
+    prior = np.sqrt(np.diag(fresh("vdm").P)[gm])
+    store = FilterStateStore(tmp_path / "filter-state.npz")
+    boot = 1_790_000_000.0
+    assert store.save(flown("vdm"), models_id="m1", autopilot_boot_unix_s=boot)
+    saved = store.load()
+    assert saved is not None and saved["gm_estimated"]
+    b = fresh("vdm")  # a restart after a power cycle, other models: the biases' σ and the aero go, δM stays
+    got = FilterStateStore.restore(b, saved, models_id="m2", autopilot_boot_unix_s=boot + 3600.0)
+    assert b.x is not None and "gm" in got and {"-aero", "-bias-sigma"} <= set(got)
+    np.testing.assert_allclose(b.x.gyro_m_err_b, m)
+    np.testing.assert_allclose(np.sqrt(np.diag(b.P)[gm]), 2e-3)  # the saved σ × 2
+    c = fresh("ins")  # leaves δM out of its dynamics: takes nothing
+    assert "gm" not in FilterStateStore.restore(c, saved, models_id="m1", autopilot_boot_unix_s=boot)
+    assert c.x is not None and not np.any(c.x.gyro_m_err_b)
+    assert store.save(flown("ins"), models_id="m1")  # gives nothing either: its δM was never estimated
+    d = fresh("vdm")
+    assert "gm" not in FilterStateStore.restore(d, store.load() or {}, models_id="m1")
+    with np.load(store.path) as z:  # a format-3 file: the same states without δM
+        old = {k: z[k] for k in z.files if k != "gm_estimated"}
+    old.update(format=np.array(FORMAT_V3), values=old["values"][:-9], cov=old["cov"][:-9, :-9])
+    np.savez(store.path, **old)
+    e = fresh("vdm")
+    assert "gm" not in FilterStateStore.restore(e, store.load() or {}, models_id="m1")
+    assert e.x is not None and not np.any(e.x.gyro_m_err_b)
+    np.testing.assert_allclose(np.sqrt(np.diag(e.P)[gm]), prior)
+
+    for lose_pose in ("autopilot_rebooted", "long IMU gap"):  # aided: the pose starts again at the next fix
+        f = flown("vdm")
+        if lose_pose == "autopilot_rebooted":
+            f.autopilot_rebooted()
+        else:
+            f._drop_pose(5.0)
+        assert f.x is None
+        f.initialise(10.0, np.array([300.0, 0.0, 0.0]), v0, f_b, mag)
+        assert f.x is not None, lose_pose
+        np.testing.assert_array_equal(f.x.gyro_m_err_b, m)
+        np.testing.assert_allclose(np.sqrt(np.diag(f.P)[gm]), 1e-3)
 
 
 # ------------------------------------------------------------------------------------ links, signing

@@ -46,25 +46,40 @@ class AutopilotAttitude:
                  offset_tau_s: float = AP_GYRO_OFFSET_TAU_S) -> None:  # fmt: skip
         self.correction_tau_s = correction_tau_s
         self.offset_tau_s = offset_tau_s
-        self.e_b_rad = np.zeros(3)
-        self._offset_b_rad_s: F64Array | None = None  # b̂
+        # e and b̂ as Python floats: this runs at the IMU's rate in every world, and np.cross on 3-vectors costs
+        # ~10 µs of checks (3 % of the test suite's CPU, 2026-12-01)
+        self._e = (0.0, 0.0, 0.0)
+        self._offset: tuple[float, float, float] | None = None  # b̂
         self._t_s: float | None = None
+
+    @property
+    def e_b_rad(self) -> F64Array:
+        """The attitude error ``e`` [rad], body frame."""
+        return np.array(self._e)
 
     def step(self, imu: ImuSample, truth: VehicleTruth) -> None:
         """One IMU sample, with the truth at its time."""
-        w_true = np.asarray(truth.omega_b_rad_s, dtype=np.float64)
-        offset = np.asarray(imu.gyro_b_rad_s, dtype=np.float64) - w_true
-        if self._offset_b_rad_s is None or self._t_s is None:
-            self._offset_b_rad_s, self._t_s = offset.copy(), imu.t_s
+        wx, wy, wz = (float(w) for w in truth.omega_b_rad_s)
+        gx, gy, gz = (float(g) for g in imu.gyro_b_rad_s)
+        ox, oy, oz = gx - wx, gy - wy, gz - wz  # the gyro's offset now
+        if self._offset is None or self._t_s is None:
+            self._offset, self._t_s = (ox, oy, oz), imu.t_s
             return
         dt = imu.t_s - self._t_s
         self._t_s = imu.t_s
         if dt <= 0.0:
             return
-        b = self._offset_b_rad_s
-        e = self.e_b_rad
-        self.e_b_rad = e + (offset - b - np.cross(w_true, e) - e / self.correction_tau_s) * dt
-        self._offset_b_rad_s = b + (offset - b) * (dt / self.offset_tau_s)
+        bx, by, bz = self._offset
+        ex, ey, ez = self._e
+        k = 1.0 / self.correction_tau_s
+        # ė = (offset − b̂) − ω × e − e / τ_c
+        self._e = (
+            ex + (ox - bx - (wy * ez - wz * ey) - ex * k) * dt,
+            ey + (oy - by - (wz * ex - wx * ez) - ey * k) * dt,
+            ez + (oz - bz - (wx * ey - wy * ex) - ez * k) * dt,
+        )
+        a = dt / self.offset_tau_s
+        self._offset = (bx + (ox - bx) * a, by + (oy - by) * a, bz + (oz - bz) * a)
 
     def q_nb(self, truth: VehicleTruth) -> F64Array:
         """The autopilot's attitude (body FRD → NED, scalar first) at the truth's time."""

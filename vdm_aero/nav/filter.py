@@ -164,13 +164,25 @@ class ModeSpec:
         return self.force if self.force in available else None
 
 
-SLOW_STATES: Final = ("bg", "ba", "wind", "bm", "baro", "aero")
-"""The states that outlive a pose: kept through long IMU gaps and across service restarts."""
+SLOW_STATES: Final = ("bg", "ba", "wind", "bm", "baro", "aero", "gm")
+"""The states that outlive a pose: kept through long IMU gaps, autopilot reboots and service restarts. The gyro's
+scale and cross-axis errors δM (``gm``) are the part's and its mounting's: a power cycle redraws the turn-on bias,
+not them (the data sheets give them a tolerance and a temperature drift, no turn-on repeatability), and they are
+learnt only in turns while GNSS aids, minutes that a reboot or a restart must not throw away."""
 
 
 def slow_index() -> np.ndarray:
     """Error-state indices of :data:`SLOW_STATES`, in order."""
     return np.concatenate([np.arange(IDX[k].start, IDX[k].stop) for k in SLOW_STATES])
+
+
+def _slow_offsets() -> dict[str, slice]:
+    """Where each of :data:`SLOW_STATES` sits in the vector :meth:`NavFilter.slow_states` gives."""
+    out, i = {}, 0
+    for k in SLOW_STATES:
+        n = IDX[k].stop - IDX[k].start
+        out[k], i = slice(i, i + n), i + n
+    return out
 
 
 # The side-force bias (AERO_PRIOR's cy_bias: 0.01 for a model from the design data) of the calibrated net: its
@@ -790,34 +802,43 @@ class NavFilter:
         covariance block, in the order of :func:`slow_index`."""
         x = self.x
         assert x is not None and self.engine is not None
-        values = np.concatenate([x.b_gyro_b, x.b_accel_b, x.wind_ned, x.b_mag_b_ut, [x.b_baro_m], x.aero])
+        values = np.concatenate(
+            [x.b_gyro_b, x.b_accel_b, x.wind_ned, x.b_mag_b_ut, [x.b_baro_m], x.aero, x.gyro_m_err_b.ravel()]
+        )
         idx = slow_index()
         return values.astype(np.float64), self.engine.P[np.ix_(idx, idx)].copy()
 
-    def restore_slow_states(self, values: F64Array, cov: F64Array, *, keep_wind: bool, keep_aero: bool = True
-                            ) -> list[str]:  # fmt: skip
+    def restore_slow_states(self, values: F64Array, cov: F64Array, *, keep_wind: bool, keep_aero: bool = True,
+                            keep_gm: bool = True) -> list[str]:  # fmt: skip
         """Put slow states into an initialised filter, independent of its new pose; returns the names
         restored (the wind only with ``keep_wind``: an old wind is worse than none; the model corrections only
-        with ``keep_aero``: they correct the models they were estimated with)."""
+        with ``keep_aero``: they correct the models they were estimated with; the gyro's δM only with
+        ``keep_gm``: a filter that did not estimate it holds only its prior)."""
         assert self.x is not None and self.engine is not None
         v = np.asarray(values, dtype=np.float64)
         idx = slow_index()
+        at = _slow_offsets()
         x = self.x
-        x.b_gyro_b, x.b_accel_b = v[0:3].copy(), v[3:6].copy()
+        x.b_gyro_b, x.b_accel_b = v[at["bg"]].copy(), v[at["ba"]].copy()
         restored = ["bg", "ba", "bm", "baro"]
         if keep_wind:
-            x.wind_ned = v[6:9].copy()
+            x.wind_ned = v[at["wind"]].copy()
             restored.insert(2, "wind")
-        x.b_mag_b_ut, x.b_baro_m = v[9:12].copy(), float(v[12])
+        x.b_mag_b_ut, x.b_baro_m = v[at["bm"]].copy(), float(v[at["baro"]][0])
         if keep_aero:
-            x.aero = v[13:].copy()
+            x.aero = v[at["aero"]].copy()
             restored.append("aero")
             self._cy_model = self._cy_model or "restored"
+        if keep_gm:
+            x.gyro_m_err_b = v[at["gm"]].reshape(3, 3).copy()
+            restored.append("gm")
         p = self.engine.P
         old = p[np.ix_(idx, idx)]
-        wind = np.isin(idx, np.arange(IDX["wind"].start, IDX["wind"].stop))
-        aero = np.isin(idx, np.arange(IDX["aero"].start, IDX["aero"].stop))
-        take = (~wind | keep_wind) & (~aero | keep_aero)
+
+        def block(k: str) -> np.ndarray:
+            return np.isin(idx, np.arange(IDX[k].start, IDX[k].stop))
+
+        take = (~block("wind") | keep_wind) & (~block("aero") | keep_aero) & (~block("gm") | keep_gm)
         p[np.ix_(idx, idx)] = np.where(np.outer(take, take), cov, np.where(np.outer(~take, ~take), old, 0.0))
         others = np.setdiff1d(np.arange(p.shape[0]), idx)
         p[np.ix_(idx, others)] = 0.0  # the restored states are independent of the new pose
