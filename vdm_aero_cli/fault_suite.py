@@ -42,6 +42,7 @@ from vdm_aero_cli.service_sitl import (
     _cpu_s,
     _terminate,
     free_udp_port,
+    nav_scenario_args,
     start_service,
     write_config,
 )
@@ -219,8 +220,7 @@ def fly_faults(flight: FaultFlight, work: Path, *, mag_field_ned_ut: tuple[float
     try:
         sup.notify.wait_ready(sup.proc)  # the port bound and the models loaded before the autopilot talks
         caps = capabilities(sup.proc.pid)
-        cmd = [*VDM_AERO, "sitl", "--nav-scenario", run.scenario, "--seed", str(run.seed), "--outage-s",
-               f"{run.outage_s:g}", "--ports-model", str(run.deim), "--connect", f"udpout:127.0.0.1:{port}",
+        cmd = [*VDM_AERO, "sitl", *nav_scenario_args(run), "--connect", f"udpout:127.0.0.1:{port}",
                "--speed", f"{run.speed:g}", "--truth", str(work / "truth.npz"), "--faults", str(work / "faults.yaml"),
                "--loop-rate-hz", f"{run.loop_rate_hz:g}", "--json", "--progress"]  # fmt: skip
         if run.stop_after_s is not None:

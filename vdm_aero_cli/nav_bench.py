@@ -246,13 +246,16 @@ def bench_scenario(name: str, seed: int, deim_dir: Path, duration_s: float, worl
     return sc, meta, t_out
 
 
-def _flight(name: str, seed: int, artifacts: NavArtifacts, duration_s: float, world: str = "kind"
+def _flight(name: str, seed: int, artifacts: NavArtifacts, duration_s: float, world: str = "kind",
+            fly_after_outage_s: float | None = None
             ) -> tuple[dict[str, F64Array], dict[str, F64Array], dict[str, Any], float]:  # fmt: skip
-    """Fly one seed of a scenario: (sensor arrays, truth arrays, meta, outage start)."""
+    """Fly one seed of a scenario: (sensor arrays, truth arrays, meta, outage start). The winds and turbulence
+    are drawn for ``duration_s``; ``fly_after_outage_s``: the flight stops that long after the outage start."""
     from sim.flight.record import fly
 
     sc, meta, t_out = bench_scenario(name, seed, artifacts.deim_dir, duration_s, world)
-    sensors, truth, _ = fly(sc, duration_s=duration_s)
+    flown_s = duration_s if fly_after_outage_s is None else min(duration_s, t_out + fly_after_outage_s)
+    sensors, truth, _ = fly(sc, duration_s=flown_s)
     meta["alpha_max_deg"] = float(np.degrees(truth["alpha_rad"].max()))
     meta["bank_max_deg"] = float(np.degrees(np.max(np.abs([euler_from_quat(q)[0] for q in truth["q_nb"][::10]]))))
     return sensors, truth, meta, t_out

@@ -64,6 +64,12 @@ class ServiceRun:
     solution_hz: float | None = None  # outputs.solution_hz (default: the shipped config's)
 
 
+def nav_scenario_args(run: ServiceRun) -> list[str]:
+    """``vdm-aero sitl``'s arguments for the benchmark flight of ``run``: scenario, seed, outage, ports."""
+    return ["--nav-scenario", run.scenario, "--seed", str(run.seed), "--outage-s", f"{run.outage_s:g}",
+            "--ports-model", str(run.deim)]  # fmt: skip
+
+
 def free_udp_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
@@ -243,8 +249,7 @@ def run_service_sitl(run: ServiceRun, work: Path, *, mag_field_ned_ut: tuple[flo
             procs_relay = relay(ap_port, svc_port)
         else:
             ap_url = f"udpout:127.0.0.1:{svc_port}"
-        cmd = [*mock_wrap, *VDM_AERO, "sitl", "--nav-scenario", run.scenario, "--seed", str(run.seed), "--outage-s",
-               f"{run.outage_s:g}", "--ports-model", str(run.deim), "--connect", ap_url, "--speed", f"{run.speed:g}",
+        cmd = [*mock_wrap, *VDM_AERO, "sitl", *nav_scenario_args(run), "--connect", ap_url, "--speed", f"{run.speed:g}",
                "--truth", str(work / "truth.npz"), "--tlog", str(work / "mock.tlog"), "--loop-rate-hz",
                f"{run.loop_rate_hz:g}", "--firmware", run.autopilot, "--px4-release", run.px4_release, "--json",
                *autopilot_stream_args(config)]  # fmt: skip
@@ -356,8 +361,10 @@ def bench_reference(run: ServiceRun, modes: tuple[str, ...] | None = None) -> di
     from vdm_aero_cli.nav_bench import AFTER_S, OUTAGE_START_S, NavArtifacts, _flight, run_filters
 
     art = NavArtifacts(run.design_data, run.deim, run.deim_nn or run.deim)
-    duration = OUTAGE_START_S[1] + run.outage_s + AFTER_S + 5.0
-    sensors, truth, meta, t_out = _flight(run.scenario, run.seed, art, duration)
+    duration = OUTAGE_START_S[1] + run.outage_s + AFTER_S + 5.0  # the draws' length, as `sitl` draws them
+    # flown only as far as the filters run (the draws' length kept, so the same winds and turbulence)
+    sensors, truth, meta, t_out = _flight(run.scenario, run.seed, art, duration,
+                                          fly_after_outage_s=run.outage_s + AFTER_S + 5.0)  # fmt: skip
     models = NavModels.load(run.design_data, run.deim, run.deim_nn)
     all_modes = tuple(dict.fromkeys((run.mode, *(modes or ()))))
     res = run_filters(sensors, truth, meta, t_out, [run.outage_s], all_modes, models)
