@@ -65,6 +65,10 @@ def test_mock_tlog_replay_matches_the_benchmark_per_mode(survey_service_run: dic
     assert doc["reference"].startswith("truth: the mock autopilot's truth file")
     assert doc["skipped_modes"] == {"vdm-deim-nn": "the model has no correction net"}
     per = doc["outages"][0]["modes"]
+    # vdm-classic's agreement is this flight's, not a property of the path: the log differs from the benchmark's
+    # arrays only by the messages' quantisation (RAW_IMU's 1 mrad/s and 1 mg, SERVO_OUTPUT_RAW's 1 µs), yet on
+    # survey seed 2 its replay ended 19.1 m off against the benchmark's 13.3 m, and on seed 0 with the outage at
+    # 90 s 38.2 against 22.9 m; the other four modes stayed within 2.1 m on seeds 0–3 (docs/performance.md)
     for mode, bench in ref["per_mode"].items():
         got, want = per[mode]["final_error_m"], bench["final_error_m"]
         assert abs(got - want) <= TOLERANCE_REL * want + TOLERANCE_M, (mode, got, want)
