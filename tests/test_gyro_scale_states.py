@@ -12,13 +12,13 @@ import math
 from dataclasses import replace
 
 import numpy as np
-import scipy.stats
 
+from tests.aiding import AidingSensors, in_band, linear_start, nees_9dof
 from vdm_aero.atmosphere import G0_M_S2
 from vdm_aero.nav.contracts import ImuIncrement
 from vdm_aero.nav.filter import MODES, NavConfig, NavFilter
 from vdm_aero.nav.state import IDX, N_ERR, NavState
-from vdm_aero.rotation import dcm_from_quat, quat_from_euler, quat_log, quat_multiply
+from vdm_aero.rotation import dcm_from_quat, quat_from_euler
 from vdm_aero.vehicle import load_vehicle
 
 RUNS = 6
@@ -66,19 +66,14 @@ def _run(
     p, v, q, _, f_b = _truth(0.0)
     f.initialise(0.0, p, v, f_b, None)
     assert f.engine is not None and f.x is not None
-    sig0 = np.sqrt(np.diag(f.engine.P))
-    sig0[6:9] = math.radians(2.0)  # start inside the linear region, as tests/test_nav_consistency.py does
-    sig0[9:12] = math.radians(0.1)
-    f.engine.P = np.diag(sig0**2)
+    sig0 = linear_start(f)
     m_sig = np.sqrt(np.diag(f.engine.P)[IDX["gm"]]).reshape(3, 3)  # the prior (the states hold δM row by row)
     dm = rng.normal(0.0, m_sig)  # the world's gyro: (I + δM)·ω + b
     b_g, b_a, b_m = rng.normal(0.0, sig0[9:12]), rng.normal(0.0, sig0[12:15]), rng.normal(0.0, sig0[18:21])
     soft = np.eye(3) + (rng.normal(0.0, soft_iron, (3, 3)) if soft_iron else 0.0)
-    f.x = NavState(p, v, q).plus(rng.normal(0.0, sig0) * (np.arange(N_ERR) < 9))
+    f.x = NavState(p, v, q).plus(np.r_[rng.normal(0.0, sig0[:9]), np.zeros(N_ERR - 9)])  # draws: not the filter's size
     noise, dt = cfg.noise, 1.0 / RATE_HZ
-    g_gnss = rng.normal(0.0, [noise.gnss_sigma_ne_m, noise.gnss_sigma_ne_m, noise.gnss_sigma_d_m])
-    decay = math.exp(-dt / noise.gnss_tau_s)
-    white = np.array([cfg.gnss_pos_sigma_ne_m, cfg.gnss_pos_sigma_ne_m, cfg.gnss_pos_sigma_d_m])
+    aids = AidingSensors(cfg, rng, dt)
     nees, heading = [], []
     for k in range(1, round(DURATION_S * RATE_HZ) + 1):
         t = k * dt
@@ -86,30 +81,14 @@ def _run(
         gyro_b = (np.eye(3) + dm) @ w_b + b_g
         f.imu(t, ImuIncrement(gyro_b * dt + rng.normal(0.0, noise.gyro_rad_s * math.sqrt(dt), 3),
                               (fb + b_a) * dt + rng.normal(0.0, noise.accel_m_s2 * math.sqrt(dt), 3), dt))  # fmt: skip
-        g_gnss = decay * g_gnss + math.sqrt(1 - decay**2) * rng.normal(
-            0.0, [noise.gnss_sigma_ne_m, noise.gnss_sigma_ne_m, noise.gnss_sigma_d_m]
-        )
         p, v, q, _, _ = _truth(t)
-        if k % 10 == 0:
-            f.gnss(t, t, p + g_gnss + rng.normal(0.0, white), v + rng.normal(0.0, 0.2, 3))
-        if k % 5 == 0:
-            f.baro(t, float(101325.0 * (1.0 - 2.25577e-5 * (-p[2] + rng.normal(0.0, 1.0))) ** 5.25588))
-            f.mag(t, soft @ dcm_from_quat(q).T @ MAG_NED_UT + b_m + rng.normal(0.0, 1.5, 3))
-            if t > 20.0:
-                x = f.x
-                dth = quat_log(quat_multiply(q * np.array([1.0, -1.0, -1.0, -1.0]), x.q_nb))
-                e = np.concatenate([x.p_ned - p, x.v_ned - v, dth])
-                nees.append(float(e @ np.linalg.solve(f.P[:9, :9], e)))
-                if t > DURATION_S - 60.0:
-                    heading.append(float(dth[2]))
+        if aids.step(f, k, t, p, v, soft @ dcm_from_quat(q).T @ MAG_NED_UT + b_m) and t > 20.0:
+            e, dth = nees_9dof(f, p, v, q)
+            nees.append(e)
+            if t > DURATION_S - 60.0:
+                heading.append(float(dth[2]))
     col_err = (f.x.gyro_m_err_b - dm)[:, 2] / m_sig[:, 2]
     return nees, float(np.sqrt(np.mean(col_err**2))), float(np.sqrt(np.mean(np.square(heading))))
-
-
-def _band(runs: np.ndarray) -> float:
-    lo, hi = scipy.stats.chi2.ppf([0.025, 0.975], 9 * RUNS) / RUNS
-    mean = runs.mean(axis=0)
-    return float(np.mean((mean >= lo) & (mean <= hi)))
 
 
 def test_s_turns_with_a_scaled_gyro_are_consistent_only_with_the_states_and_they_learn_the_yaw_column() -> None:
@@ -117,7 +96,7 @@ def test_s_turns_with_a_scaled_gyro_are_consistent_only_with_the_states_and_they
     for learn in (True, False):
         rng = np.random.default_rng(20261201)  # the same worlds for both
         runs = [_run(rng, learn)[:2] for _ in range(RUNS)]
-        out[learn] = (_band(np.array([r[0] for r in runs])), float(np.median([r[1] for r in runs])))
+        out[learn] = (in_band(np.array([r[0] for r in runs])), float(np.median([r[1] for r in runs])))
     (inside, col), (inside_without, col_without) = out[True], out[False]
     assert inside >= 0.9, f"with the states, the average NEES is in band for {100 * inside:.0f} % of epochs"
     assert inside_without < 0.5, f"without them it is still in band for {100 * inside_without:.0f} % of epochs"
@@ -134,13 +113,15 @@ def test_with_a_residual_soft_iron_the_states_learn_better_from_a_looser_aided_c
     assert aided is not None and aided > NavConfig.mag_sigma_ut
     out = {}
     for sigma in (None, aided):
-        rng = np.random.default_rng(20261201)  # the first four of the eight measured
+        rng = np.random.default_rng(20261201)  # four flights
         out[sigma] = np.array([_run(rng, True, soft_iron=0.03, aided_mag_sigma_ut=sigma)[1:] for _ in range(4)])
     tight, loose = out[None], out[aided]
-    # measured on eight flights: the yaw column's error 1.88 → 1.02 prior σ, the heading 1.48° → 0.89° rms (medians),
-    # better in every flight
+    # measured on 60 flights (seeds 9000-9059, one pair per seed): the yaw column's error 2.01 → 0.98 prior σ and
+    # the heading 1.05° → 0.57° rms (medians); the column better in all 60, the heading in 58 (the other two worse by
+    # 0.3 and 1.1 mrad rms), so per flight only the column; the heading's median over four flights ÷ the tight one's was
+    # 0.42-0.65 in all 15 groups of four
     assert (loose[:, 0] < tight[:, 0]).all(), (tight[:, 0], loose[:, 0])
-    assert (loose[:, 1] < tight[:, 1]).all(), (tight[:, 1], loose[:, 1])
+    assert np.median(loose[:, 1]) < 0.8 * np.median(tight[:, 1]), (tight[:, 1], loose[:, 1])
 
 
 def test_the_states_leave_a_mode_that_does_not_model_them_as_it_was() -> None:

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import scipy.stats
 
+from tests.aiding import linear_start
 from vdm_aero.atmosphere import G0_M_S2, density_kg_m3
 from vdm_aero.nav.contracts import ImuIncrement
 from vdm_aero.nav.filter import NavConfig, NavFilter
@@ -88,12 +89,7 @@ def _run(rng: np.random.Generator, mode: str = "ins", delayed: bool = False, sky
     p, v, q, _, f_b = _truth(0.0)
     f.initialise(0.0, p, v, f_b, None)
     assert f.engine is not None
-    # start inside the linear region (an EKF started 15° off in heading is not expected to be consistent
-    # until the heading converges): 2° attitude and 0.1 °/s gyro bias uncertainty
-    sig0 = np.sqrt(np.diag(f.engine.P))
-    sig0[6:9] = math.radians(2.0)
-    sig0[9:12] = math.radians(0.1)
-    f.engine.P = np.diag(sig0**2)
+    sig0 = linear_start(f)
     truth0 = NavState(p, v, q)
     b_g = rng.normal(0.0, sig0[9:12])
     b_a = rng.normal(0.0, sig0[12:15])

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -45,6 +46,7 @@ def _state(rng: np.random.Generator) -> NavState:
     x.gnss_lag_s = float(rng.normal(0.0, 0.05))
     x.wind_gradient_ne_per_s = rng.normal(0.0, 0.01, 2)
     x.gyro_m_err_b = rng.normal(0.0, 0.01, (3, 3))
+    x.accel_m_err_b = rng.normal(0.0, 0.01, (3, 3))  # the third column is no state: held, as the filter holds it
     return x
 
 
@@ -62,6 +64,7 @@ class _Derivs:
 
 
 CTX = ForceContext(rho_kg_m3=1.15, area_per_mass_m2_kg=0.39 / 2.5, mass_kg=2.5, thrust_a_n=8.0, thrust_b_n_s_m=-0.2)
+CTX_AM = replace(CTX, accel_m_err=True)  # the accelerometer's scale and cross-axis errors in the prediction
 MODELS = [
     GnssPosition(0.7, 1.0),
     GnssVelocity(0.2),
@@ -77,6 +80,8 @@ MODELS = [
     PortAirData(np.eye(3)),
     PortForce(np.array([-0.04, 0.01, -0.45]), CTX, np.ones(3)),
     ClassicForce(_Derivs(), np.array([0.1, -0.2, 0.05]), np.zeros(3), CTX, np.ones(3)),
+    PortForce(np.array([-0.04, 0.01, -0.45]), CTX_AM, np.ones(3), name="aero_force_am"),
+    ClassicForce(_Derivs(), np.array([0.1, -0.2, 0.05]), np.zeros(3), CTX_AM, np.ones(3), name="aero_force_classic_am"),
     # the autopilot's attitude 0.3 rad from the states': the exact Jacobian, not the small-angle −I
     AutopilotAttitude(quat_from_euler(0.2, -0.15, 1.1), np.array([0.035, 0.035, 0.087])),
 ]
@@ -120,9 +125,10 @@ def test_ins_transition_matches_finite_differences() -> None:
 
 def test_ins_transition_is_the_second_order_series_of_its_error_dynamics() -> None:
     """The block-by-block Φ equals I + FΔt + ½(FΔt)² with F assembled densely from the error dynamics of the
-    module docstring (δv̇ = −Ĉ[f×]δθ − Ĉδb_a, δθ̇ = −[ω×]δθ − (I − δM)δb_g − δM'·u with u the rate less the
-    bias and δM' the scale and cross-axis errors' error, Gauss–Markov GNSS error and gust, the horizontal wind
-    following its gradient with height: δẇ_NE = −G·δv_D − v_D·δG)."""
+    module docstring (δv̇ = −Ĉ[f×]δθ − Ĉ(I − δMa)δb_a − Ĉ·δMa'·a with a the specific force read less the bias,
+    δθ̇ = −[ω×]δθ − (I − δM)δb_g − δM'·u with u the rate less the bias, δM' and δMa' the scale and cross-axis
+    errors' errors, Gauss–Markov GNSS error and gust, the horizontal wind following its gradient with height:
+    δẇ_NE = −G·δv_D − v_D·δG)."""
     from vdm_aero.atmosphere import G0_M_S2
     from vdm_aero.nav.ins import skew
     from vdm_aero.nav.state import IDX
@@ -133,18 +139,20 @@ def test_ins_transition_is_the_second_order_series_of_its_error_dynamics() -> No
     for dt in (0.02, 0.0025, 0.02):  # Δt changes and comes back: the cached diagonal follows it
         x = _state(rng)
         u = ImuIncrement(rng.normal(0.0, 0.5, 3) * dt, (np.array([0.0, 0.0, -9.8]) + rng.normal(0, 2, 3)) * dt, dt)
-        f_b, u_b = u.dvel_b / dt - x.b_accel_b, u.dtheta_b / dt - x.b_gyro_b
-        w_b = u_b - x.gyro_m_err_b @ u_b
+        a_b, u_b = u.dvel_b / dt - x.b_accel_b, u.dtheta_b / dt - x.b_gyro_b
+        f_b, w_b = a_b - x.accel_m_err_b @ a_b, u_b - x.gyro_m_err_b @ u_b
         c = dcm_from_quat(quat_multiply(x.q_nb, quat_exp(0.5 * w_b * dt)))
         f = np.zeros((N_ERR, N_ERR))
         f[IDX["p"], IDX["v"]] = np.eye(3)
         f[IDX["v"], IDX["theta"]] = -c @ skew(f_b)
-        f[IDX["v"], IDX["ba"]] = -c
+        f[IDX["v"], IDX["ba"]] = -c @ (np.eye(3) - x.accel_m_err_b)
         f[IDX["theta"], IDX["theta"]] = -skew(w_b)
         f[IDX["theta"], IDX["bg"]] = -(np.eye(3) - x.gyro_m_err_b)
         for i in range(3):  # ∂(δM·u)_i/∂δM[i, j] = u_j; the states hold δM row by row
             for j in range(3):
                 f[IDX["theta"].start + i, IDX["gm"].start + 3 * i + j] = -u_b[j]
+                if j < 2:  # δMa's first two columns are states
+                    f[IDX["v"], IDX["am"].start + 2 * i + j] = -c[:, i] * a_b[j]  # −Ĉ·(δMa·a), column by column
         f[IDX["gnss"], IDX["gnss"]] = -np.eye(3) / ins.noise_densities.gnss_tau_s
         f[IDX["gust"], IDX["gust"]] = -np.diag(1.0 / np.asarray(ins.noise_densities.gust_tau_s))
         wind_ne = slice(IDX["wind"].start, IDX["wind"].start + 2)

@@ -148,6 +148,8 @@ class ModeSpec:
     compass_aided_fit: bool = False
     # the gyro's scale and cross-axis errors as states (vdm_aero.nav.state), learnt while GNSS aids through turns
     gyro_m_err: bool = False
+    # the accelerometer's scale and cross-axis errors as states (vdm_aero.nav.state), learnt while GNSS aids
+    accel_m_err: bool = False
     # the compass's 1σ [µT] when the mode stands for the autopilot's own filter (None: NavConfig.mag_sigma_ut)
     mag_sigma_ut: float | None = None
     # the compass's 1σ [µT] while GNSS aids, when looser than in an outage: with the gyro's scale states, GNSS
@@ -224,9 +226,11 @@ MODES: Final = {
         compass_throttle_range=True,
         compass_aided_fit=True,
         gyro_m_err=True,
+        accel_m_err=True,
         mag_sigma_aided_ut=EKF3_MAG_SIGMA_UT,
         description="the product: pitot + port air data + force model, air-data FDI, wind relearnt with its "
-        "gradient with height, the gyro's scale and cross-axis errors and the compass deviation learnt in flight, "
+        "gradient with height, the gyro's and the accelerometer's scale and cross-axis errors and the compass "
+        "deviation learnt in flight, "
         "the compass at EKF3's σ while GNSS aids, the compass's heading alone in an outage once "
         "its field's strength is off or the throttle is held outside what the deviation was learnt on, and at "
         "EKF3's σ once its innovations while GNSS aided were past what the tilt can be held with",
@@ -245,6 +249,9 @@ ABLATIONS: Final = {
     "vdm-no-gyro-scale": replace(_VDM, gyro_m_err=False, mag_sigma_aided_ut=None,
                                  description="ablation: vdm without the gyro's scale and cross-axis error states "
                                  "(and the looser aided compass that goes with them)"),
+    "vdm-no-accel-scale": replace(_VDM, accel_m_err=False,
+                                  description="ablation: vdm without the accelerometer's scale and cross-axis error "
+                                  "states"),
     "vdm-no-gradient": replace(_VDM, wind_gradient=False,
                                description="ablation: vdm without the wind's gradient with height (WIND_PSCALE)"),
     # not an ablation but the variant measured against it (docs/navigation.md, "The compass's heading alone")
@@ -345,6 +352,11 @@ class NavConfig:
     # the accelerometer by up to the latter's ±1 % cross-axis, which adds to the gyro's own off the diagonal
     gyro_scale_sigma: float = 0.01 / math.sqrt(3.0)
     gyro_cross_axis_sigma: float = math.hypot(0.0125, 0.01) / math.sqrt(3.0)
+    # the accelerometer's δMa (1σ): ±0.5 % of sensitivity after the user's calibration and ±0.5–1 % of cross-axis
+    # (the same tables), uniform within. The level trim moves x's sensitivity to z onto z's to x, so that element
+    # can reach twice the tolerance (state.py); the prior stays at the data sheets'
+    accel_scale_sigma: float = 0.005 / math.sqrt(3.0)
+    accel_cross_axis_sigma: float = 0.01 / math.sqrt(3.0)
     accel_bias_sigma_m_s2: float = 0.25
 
     @classmethod
@@ -496,7 +508,7 @@ class NavFilter:
         self._next_aid: dict[str, float] = {}
         self._last_rejected_s: dict[str, float] = {}
         self._consider = np.zeros(N_ERR, dtype=bool)
-        for k in ("wind", "bm", "baro", "gnss", "aero", "lag", "wg", "gm"):
+        for k in ("wind", "bm", "baro", "gnss", "aero", "lag", "wg", "gm", "am"):
             self._consider[IDX[k]] = True
         self._wind_live = self._consider.copy()
         self._wind_live[IDX["wind"]] = False
@@ -517,6 +529,8 @@ class NavFilter:
             self.process.freeze_wind_gradient()
         if not self.spec.gyro_m_err:
             self.process.freeze_gyro_m_err()
+        if not self.spec.accel_m_err:
+            self.process.freeze_accel_m_err()
         # (t [s], V [m/s], σ_V [m/s], α [rad], the usable ports' mask as bytes, α inside the airspeed table)
         self._ports_speed: tuple[float, float, float, float, bytes, bool] | None = None
         self.fallback = False
@@ -605,9 +619,13 @@ class NavFilter:
             "wind_gradient_m_s_per_100m": None if self.x is None or not self.spec.wind_gradient else [
                 round(100.0 * float(g), 2) for g in self.x.wind_gradient_ne_per_s],
             # the gyro's scale and cross-axis errors δM [%], row by row, as learnt in the aided turns (the modes that
-            # carry them; not kept across a restart: they are learnt again in the turns of a few minutes' flight)
+            # carry them; a slow state, kept across a restart)
             "gyro_scale_misalignment_pct": None if self.x is None or not self.spec.gyro_m_err else [
                 round(100.0 * float(m), 2) for m in self.x.gyro_m_err_b.ravel()],
+            # the accelerometer's δMa [%], row by row, as learnt while aided (the modes that carry them; not kept
+            # across a restart or a dropped pose, unlike the gyro's: learnt again in a few minutes' aided flight)
+            "accel_scale_misalignment_pct": None if self.x is None or not self.spec.accel_m_err else [
+                round(100.0 * float(m), 2) for m in self.x.accel_m_err_b.ravel()],
             # the receiver's latency the fixes' stamps miss (true − assumed), as learnt in the turns, and its 1σ
             "gnss_lag_error_ms": None if self.x is None else [
                 round(1e3 * self.x.gnss_lag_s, 1), round(1e3 * math.sqrt(max(self.P[lag, lag], 0.0)), 1)],
@@ -650,6 +668,9 @@ class NavFilter:
         sig[IDX["gm"]] = np.where(
             np.eye(3, dtype=bool), self.config.gyro_scale_sigma, self.config.gyro_cross_axis_sigma
         ).ravel()  # likewise
+        sig[IDX["am"]] = np.where(
+            np.eye(3, dtype=bool), self.config.accel_scale_sigma, self.config.accel_cross_axis_sigma
+        )[:, :2].ravel()  # likewise
         self.engine = EkfEngine(np.diag(sig**2))
         self.t_s = t_s
         self._t_init_s = t_s
@@ -909,7 +930,8 @@ class NavFilter:
         else:
             n = min(max(math.ceil(gap_s / GAP_STEP_S), 1), GAP_MAX_STEPS)
             dt = gap_s / n
-            f_level_b = dcm_from_quat(self.x.q_nb).T @ np.array([0.0, 0.0, -G0_M_S2]) + self.x.b_accel_b
+            f_level_b = dcm_from_quat(self.x.q_nb).T @ np.array([0.0, 0.0, -G0_M_S2])
+            f_level_b = f_level_b + self.x.accel_m_err_b @ f_level_b + self.x.b_accel_b  # what it reads of −g
             held = ImuIncrement(self.x.b_gyro_b * dt, f_level_b * dt, dt)  # bias-corrected: ω = 0, f = −g
             for _ in range(n):
                 self._predict(self.process.transition(self.x, held), noise(held))
@@ -1325,9 +1347,8 @@ class NavFilter:
     def _ctx(self) -> ForceContext:
         prop = self.config.vehicle.propulsion
         a, b = prop.thrust_regressors(self.inputs.throttle, 1.0, self.inputs.rho_kg_m3)
-        return ForceContext(
-            self.inputs.rho_kg_m3, self._area_per_mass, self.config.vehicle.mass.mass_kg, float(a), float(b)
-        )
+        return ForceContext(self.inputs.rho_kg_m3, self._area_per_mass, self.config.vehicle.mass.mass_kg, float(a),
+                            float(b), self.spec.accel_m_err)  # fmt: skip
 
     def _classic_force(self) -> ClassicForce:
         assert self.derivatives is not None

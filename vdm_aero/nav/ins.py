@@ -75,6 +75,9 @@ class ProcessNoise:
     # the gyro's scale and cross-axis errors move with the board's temperature (a few 0.01 %/K in MEMS data
     # sheets' sensitivity change over temperature): 0.1 % in 10 minutes
     gyro_m_err_per_sqrt_s: float = 4.0e-5
+    # the accelerometer's: its sensitivity moves with temperature less than the gyro's (MEMS data sheets:
+    # ±0.005–0.02 %/K), 0.03 % in 10 minutes
+    accel_m_err_per_sqrt_s: float = 1.0e-5
     # turbulence: MIL-F-8785C low-altitude light-to-moderate intensities (σ_u,v ≈ 1.5, σ_w ≈ 1 m/s at
     # 100 m) and correlation times L/V (L_u ≈ 250 m at 18 m/s; L_w = h ≈ 100 m)
     gust_sigma_m_s: tuple[float, float, float] = (1.5, 1.5, 1.0)
@@ -88,6 +91,7 @@ _I2.flags.writeable = False
 _W = slice(IDX["wind"].start, IDX["wind"].start + 2)  # the horizontal wind's rows
 _WG = IDX["wg"]
 _GM = IDX["gm"]
+_AM = IDX["am"]
 
 
 class InsProcess:
@@ -108,11 +112,13 @@ class InsProcess:
         q[IDX["lag"]] = n.gnss_lag_s_per_sqrt_s**2
         q[IDX["wg"]] = n.wind_gradient_per_s_sqrt_s**2
         q[IDX["gm"]] = n.gyro_m_err_per_sqrt_s**2
+        q[_AM] = n.accel_m_err_per_sqrt_s**2
         q[IDX["gnss"]] = 2.0 / n.gnss_tau_s * np.square([n.gnss_sigma_ne_m, n.gnss_sigma_ne_m, n.gnss_sigma_d_m])
         self._gust_rate = 1.0 / np.asarray(n.gust_tau_s)
         self.wind_height_rate_scale = 0.0  # > 0: wind noise × (1 + scale·|ḣ|), EKF2/3's WIND_PSCALE
         self.wind_gradient = True  # the wind follows its gradient with height (freeze_wind_gradient: not)
         self.gyro_m_err = True  # the gyro's scale and cross-axis errors correct it (freeze_gyro_m_err: not)
+        self.accel_m_err = True  # the same for the accelerometer (freeze_accel_m_err: not)
         self._qc = q
         self.set_gust_sigma(np.asarray(n.gust_sigma_m_s, dtype=np.float64))
         self._g = np.array([0.0, 0.0, G0_M_S2])
@@ -150,6 +156,20 @@ class InsProcess:
         self._qc[_GM] = 0.0
         self.gyro_m_err = False
 
+    def freeze_accel_m_err(self) -> None:
+        """A mode that does not model the accelerometer's scale and cross-axis errors: as
+        :meth:`freeze_gyro_m_err`."""
+        self._qc[_AM] = 0.0
+        self.accel_m_err = False
+
+    def _force_b(self, x: NavState, u: ImuIncrement) -> F64Array:
+        """The specific force [m/s²] the increment gives: less the bias, and less the scale and cross-axis
+        errors where the mode models them."""
+        f_b = u.dvel_b / u.dt_s - x.b_accel_b
+        if self.accel_m_err:
+            f_b = f_b - x.accel_m_err_b @ f_b
+        return np.asarray(f_b)
+
     def _rate_b(self, x: NavState, u: ImuIncrement) -> F64Array:
         """The body rate [rad/s] the increment gives: less the bias, and less the scale and cross-axis errors
         where the mode models them."""
@@ -172,7 +192,7 @@ class InsProcess:
         q = quat_multiply(x.q_nb, quat_exp(dth))
         x.q_nb = q / math.sqrt(float(q @ q))
         c1 = dcm_from_quat(x.q_nb)
-        dv_n = 0.5 * (c0 + c1) @ (u.dvel_b - x.b_accel_b * dt) + self._g * dt
+        dv_n = 0.5 * (c0 + c1) @ (self._force_b(x, u) * dt) + self._g * dt
         v0 = x.v_ned.copy()
         x.v_ned = v0 + dv_n
         x.p_ned = x.p_ned + 0.5 * (v0 + x.v_ned) * dt
@@ -182,13 +202,13 @@ class InsProcess:
     def transition(self, x: NavState, u: ImuIncrement) -> F64Array:
         """Φ ≈ I + F·Δt + ½(F·Δt)², with the attitude at mid-step (as the mechanisation rotates Δv).
 
-        F's non-zero blocks (p, v, θ, b_g, b_a at 0, 3, 6, 9, 12): F_pv = I, F_vθ = −Ĉ[f×], F_vba = −Ĉ,
-        F_θθ = −[ω×], F_θbg = −(I − δM̂), F_θm = −U (the gyro's scale and cross-axis errors), and the GNSS error's
-        and the gust's decay on the diagonal. F² is written out
+        F's non-zero blocks (p, v, θ, b_g, b_a at 0, 3, 6, 9, 12): F_pv = I, F_vθ = −Ĉ[f×], F_vba = −Ĉ(I − δM̂a),
+        F_vma = −Ĉ·Ua (the accelerometer's scale and cross-axis errors), F_θθ = −[ω×], F_θbg = −(I − δM̂),
+        F_θm = −U (the gyro's), and the GNSS error's and the gust's decay on the diagonal. F² is written out
         block by block (F_pv·F_v•, F_vθ·F_θ•, F_θθ·F_θ•) instead of a dense N_ERR × N_ERR product: the profile's
         largest single cost of a step (docs/performance.md)."""
         dt = u.dt_s
-        f_b = u.dvel_b / dt - x.b_accel_b
+        f_b = self._force_b(x, u)
         w_b = self._rate_b(x, u)
         c = dcm_from_quat(quat_multiply(x.q_nb, quat_exp(0.5 * w_b * dt)))
         if dt != self._phi_dt:  # the diagonal: 1 − aΔt + ½(aΔt)², constant while Δt is
@@ -198,13 +218,18 @@ class InsProcess:
         cf = c @ skew(f_b)
         wx = skew(w_b)
         h = 0.5 * dt * dt
+        ca = c @ (_I3 - x.accel_m_err_b) if self.accel_m_err else c  # ∂f/∂b_a = −(I − δM̂a)
         phi = self._phi_const.copy()
         phi[0:3, 3:6] = _I3 * dt
         phi[0:3, 6:9] = -h * cf
-        phi[0:3, 12:15] = -h * c
+        phi[0:3, 12:15] = -h * ca
         phi[3:6, 6:9] = -dt * cf + h * (cf @ wx)
         phi[3:6, 9:12] = h * cf
-        phi[3:6, 12:15] = -dt * c
+        phi[3:6, 12:15] = -dt * ca
+        if self.accel_m_err:
+            cu = c @ np.kron(_I3, (u.dvel_b / dt - x.b_accel_b)[:2])  # Ĉ·Ua: δMa·f̃ = Ua·δma (two columns)
+            phi[0:3, _AM] = -h * cu
+            phi[3:6, _AM] = -dt * cu
         phi[6:9, 6:9] = _I3 - dt * wx + h * (wx @ wx)
         phi[6:9, 9:12] = -dt * _I3 + h * wx
         if self.gyro_m_err:
@@ -223,7 +248,9 @@ class InsProcess:
         phi[_W, _WG] = -vd_mid * dt * _I2
         phi[_W, 5] = -dt * g_ne
         phi[_W, 6:9] = h * np.outer(g_ne, cf[2])
-        phi[_W, 12:15] = h * np.outer(g_ne, c[2])
+        phi[_W, 12:15] = h * np.outer(g_ne, ca[2])
+        if self.accel_m_err:
+            phi[_W, _AM] = h * np.outer(g_ne, cu[2])
         return phi
 
     def noise(self, x: NavState, u: ImuIncrement) -> F64Array:

@@ -389,25 +389,29 @@ class PortAirData:
 @dataclass(frozen=True)
 class ForceContext:
     """What the specific-force prediction needs besides the state: air density [kg/m³], q̄S/m scale
-    (S/m [m²/kg]), and the thrust T = k_T·(thrust_a + thrust_b·u) [N] with u the axial airspeed."""
+    (S/m [m²/kg]), and the thrust T = k_T·(thrust_a + thrust_b·u) [N] with u the axial airspeed;
+    ``accel_m_err``: the mode models the accelerometer's scale and cross-axis errors, so the prediction is
+    what the accelerometer reads of the force, (I + δMa)·f + b_a (else f + b_a)."""
 
     rho_kg_m3: float
     area_per_mass_m2_kg: float
     mass_kg: float
     thrust_a_n: float
     thrust_b_n_s_m: float
+    accel_m_err: bool = False
 
 
 def _force_rows(
     x: NavState, k: AirKinematics, c: F64Array, ctx: ForceContext
 ) -> tuple[F64Array, F64Array, float, F64Array]:
-    """(h (3,), ∂h/∂v_b through q̄ and thrust (3, 3), q̄S/m, thrust [N]) for body coefficients c (3,)."""
+    """(f (3,), ∂f/∂v_b through q̄ and thrust (3, 3), q̄S/m, thrust [N]) for body coefficients c (3,): the
+    specific force, before the accelerometer reads it (:func:`_as_read`)."""
     a = x.aero
     qsm = 0.5 * ctx.rho_kg_m3 * k.speed**2 * ctx.area_per_mass_m2_kg
     u = float(k.v_b[0])
     thrust = a[_THRUST] * (ctx.thrust_a_n + ctx.thrust_b_n_s_m * u)
     cc = np.array([c[0] + a[_CX], c[1] + a[_CY], c[2] * a[_CZ]])
-    h = qsm * cc + x.b_accel_b
+    h = qsm * cc
     h[0] += thrust / ctx.mass_kg
     dqsm = ctx.rho_kg_m3 * ctx.area_per_mass_m2_kg * k.v_b  # ∂(q̄S/m)/∂v_b
     d = np.outer(cc, dqsm)
@@ -416,11 +420,30 @@ def _force_rows(
 
 
 def _force_params(h: F64Array, x: NavState, qsm: float, c: F64Array, ctx: ForceContext, k: AirKinematics) -> None:
-    h[:, IDX["ba"]] = np.eye(3)
     h[0, AERO_INDEX["cx_bias"]] = qsm
     h[1, AERO_INDEX["cy_bias"]] = qsm
     h[2, AERO_INDEX["cz_scale"]] = qsm * c[2]
     h[0, AERO_INDEX["thrust_scale"]] = (ctx.thrust_a_n + ctx.thrust_b_n_s_m * float(k.v_b[0])) / ctx.mass_kg
+
+
+_BA, _AM0 = IDX["ba"], IDX["am"].start
+_I3 = np.eye(3)
+_I3.flags.writeable = False
+
+
+def _as_read(f: F64Array, h: F64Array, x: NavState, ctx: ForceContext) -> tuple[F64Array, F64Array]:
+    """What the accelerometer reads of the specific force ``f`` whose Jacobian is ``h``: (I + δMa)·f + b_a, with
+    its Jacobian (δMa·f = Fa·δma, Fa = I ⊗ fᵀ; δMa only where the mode models it)."""
+    if ctx.accel_m_err:
+        m = x.accel_m_err_b
+        z = f + m @ f + x.b_accel_b
+        h = h + m @ h
+        for i in range(3):
+            h[i, _AM0 + 2 * i : _AM0 + 2 * i + 2] = f[:2]
+    else:
+        z = f + x.b_accel_b
+    h[:, _BA] = _I3
+    return z, h
 
 
 @dataclass(frozen=True)
@@ -434,17 +457,17 @@ class PortForce:
     name: str = "aero_force"
 
     def evaluate(self, x: NavState) -> F64Array:
-        return _force_rows(x, AirKinematics.of(x), self.coeffs_xyz, self.ctx)[0]
+        return self.evaluate_with_jacobian(x)[0]
 
     def jacobian(self, x: NavState) -> F64Array:
         return self.evaluate_with_jacobian(x)[1]
 
     def evaluate_with_jacobian(self, x: NavState) -> tuple[F64Array, F64Array]:
         k = AirKinematics.of(x)
-        z, d, qsm, _ = _force_rows(x, k, self.coeffs_xyz, self.ctx)
+        f, d, qsm, _ = _force_rows(x, k, self.coeffs_xyz, self.ctx)
         h = k.chain(d)
         _force_params(h, x, qsm, self.coeffs_xyz, self.ctx, k)
-        return z, h
+        return _as_read(f, h, x, self.ctx)
 
     def covariance(self) -> F64Array:
         return _diag(self.sigma_m_s2)
@@ -466,9 +489,7 @@ class ClassicForce:
         return self.derivatives.coeffs_and_gradient(k.speed, k.alpha, k.beta, self.omega_b, self.controls_rad)
 
     def evaluate(self, x: NavState) -> F64Array:
-        k = AirKinematics.of(x)
-        c, _ = self._coeffs(k)
-        return _force_rows(x, k, c, self.ctx)[0]
+        return self.evaluate_with_jacobian(x)[0]
 
     def jacobian(self, x: NavState) -> F64Array:
         return self.evaluate_with_jacobian(x)[1]
@@ -476,12 +497,12 @@ class ClassicForce:
     def evaluate_with_jacobian(self, x: NavState) -> tuple[F64Array, F64Array]:
         k = AirKinematics.of(x)
         c, grad = self._coeffs(k)  # grad (3, 3): ∂C/∂(V, α, β)
-        z, d, qsm, _ = _force_rows(x, k, c, self.ctx)
+        f, d, qsm, _ = _force_rows(x, k, c, self.ctx)
         scale = np.array([1.0, 1.0, x.aero[_CZ]])
         d_c = grad @ np.vstack([k.d_speed, k.d_alpha, k.d_beta])  # ∂C/∂v_b
         h = k.chain(d + qsm * scale[:, None] * d_c)
         _force_params(h, x, qsm, c, self.ctx, k)
-        return z, h
+        return _as_read(f, h, x, self.ctx)
 
     def covariance(self) -> F64Array:
         return _diag(self.sigma_m_s2)

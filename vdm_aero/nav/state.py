@@ -24,6 +24,15 @@ Nominal state (SI, NED navigation frame about a local origin, FRD body frame):
   (I + δM)·ω + b. MEMS data sheets allow ±0.5–1 % of scale and ±1–1.25 % of cross-axis sensitivity, and no
   autopilot calibrates them; in a 20°/s turn they turn the tilt by 0.2–0.3°/s, which the bias states cannot
   hold because it follows the rate, not the time (learnt while GNSS aids through the turns).
+* ``accel_m_err_b`` the accelerometer's scale-factor and cross-axis errors δMa (3 × 3, dimensionless): it reads
+  (I + δMa)·f + b. MEMS data sheets allow ±0.5 % of scale and ±1–2 % of cross-axis sensitivity; the autopilot's
+  level trim cancels the part that tilts gravity at rest, and the rotation that cancels x's sensitivity to z adds
+  as much to z's sensitivity to x, so to along-track accelerations the accelerometer looks pitched while to
+  gravity it looks level (docs/navigation.md, "Where the tilt offset comes from, measured"). A bias cannot hold
+  an error that follows the specific force (learnt while GNSS aids through speed changes and turns). Only its
+  first two columns (the sensitivity to f_x and f_y) are states: in flight f_z stays near −g, so the third column
+  is the accelerometer bias again, and with it as states the bias wandered along their common direction in an
+  outage (docs/navigation.md); the level trim has already taken its cross terms δMa[0, 2] and δMa[1, 2] away.
 
 The error state δx (:data:`N_ERR` components) is additive for every block except attitude, whose error
 is a body-frame rotation vector: q = q̂ ⊗ exp(δθ), the ⊕ of :mod:`vdm_aero.rotation`.
@@ -84,9 +93,11 @@ IDX: Final = {
     "lag": _block(28 + len(AERO_PARAMS), 1),
     "wg": _block(29 + len(AERO_PARAMS), 2),
     "gm": _block(31 + len(AERO_PARAMS), 9),
+    "am": _block(40 + len(AERO_PARAMS), 6),
 }
-"""Error-state slices by block name (``gm``: δM row by row, δM[i, j] at ``gm.start + 3 i + j``)."""
-N_ERR: Final = 40 + len(AERO_PARAMS)
+"""Error-state slices by block name (``gm``: δM row by row, δM[i, j] at ``gm.start + 3 i + j``; ``am``: δMa's
+first two columns row by row, δMa[i, j] at ``am.start + 2 i + j``)."""
+N_ERR: Final = 46 + len(AERO_PARAMS)
 AERO_INDEX: Final = {name: 28 + i for i, name in enumerate(AERO_PARAMS)}
 """Error-state index of each aero parameter."""
 AERO_SLOT: Final = {name: i for i, name in enumerate(AERO_PARAMS)}
@@ -111,6 +122,7 @@ class NavState:
     gnss_lag_s: float = 0.0
     wind_gradient_ne_per_s: F64Array = field(default_factory=lambda: np.zeros(2))
     gyro_m_err_b: F64Array = field(default_factory=lambda: np.zeros((3, 3)))
+    accel_m_err_b: F64Array = field(default_factory=lambda: np.zeros((3, 3)))
 
     @property
     def air_motion_ned(self) -> F64Array:
@@ -122,7 +134,7 @@ class NavState:
             self.p_ned.copy(), self.v_ned.copy(), self.q_nb.copy(), self.b_gyro_b.copy(), self.b_accel_b.copy(),
             self.wind_ned.copy(), self.b_mag_b_ut.copy(), self.b_baro_m, self.b_gnss_ned.copy(),
             self.gust_ned.copy(), self.aero.copy(), self.gnss_lag_s, self.wind_gradient_ne_per_s.copy(),
-            self.gyro_m_err_b.copy(),
+            self.gyro_m_err_b.copy(), self.accel_m_err_b.copy(),
         )  # fmt: skip
 
     def plus(self, dx: F64Array) -> NavState:
@@ -148,6 +160,7 @@ class NavState:
         self.gnss_lag_s += float(dx[IDX["lag"]][0])
         self.wind_gradient_ne_per_s += dx[IDX["wg"]]
         self.gyro_m_err_b += dx[IDX["gm"]].reshape(3, 3)
+        self.accel_m_err_b[:, :2] += dx[IDX["am"]].reshape(3, 2)
 
     def minus(self, other: NavState) -> F64Array:
         """x ⊖ y: the error state δx with y ⊕ δx = x."""
@@ -168,5 +181,6 @@ class NavState:
                 [self.gnss_lag_s - other.gnss_lag_s],
                 self.wind_gradient_ne_per_s - other.wind_gradient_ne_per_s,
                 (self.gyro_m_err_b - other.gyro_m_err_b).ravel(),
+                (self.accel_m_err_b - other.accel_m_err_b)[:, :2].ravel(),
             ]
         )
