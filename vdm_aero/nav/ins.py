@@ -162,13 +162,11 @@ class InsProcess:
         self._qc[_AM] = 0.0
         self.accel_m_err = False
 
-    def _force_b(self, x: NavState, u: ImuIncrement) -> F64Array:
-        """The specific force [m/s²] the increment gives: less the bias, and less the scale and cross-axis
-        errors where the mode models them."""
-        f_b = u.dvel_b / u.dt_s - x.b_accel_b
-        if self.accel_m_err:
-            f_b = f_b - x.accel_m_err_b @ f_b
-        return np.asarray(f_b)
+    def _force_b(self, x: NavState, u: ImuIncrement) -> tuple[F64Array, F64Array]:
+        """The specific force [m/s²] the increment gives, less the bias and less the scale and cross-axis errors
+        where the mode models them; and what it read less the bias alone (δMa's regressor in Φ)."""
+        a_b = u.dvel_b / u.dt_s - x.b_accel_b
+        return (np.asarray(a_b - x.accel_m_err_b @ a_b) if self.accel_m_err else a_b), a_b
 
     def _rate_b(self, x: NavState, u: ImuIncrement) -> F64Array:
         """The body rate [rad/s] the increment gives: less the bias, and less the scale and cross-axis errors
@@ -192,7 +190,7 @@ class InsProcess:
         q = quat_multiply(x.q_nb, quat_exp(dth))
         x.q_nb = q / math.sqrt(float(q @ q))
         c1 = dcm_from_quat(x.q_nb)
-        dv_n = 0.5 * (c0 + c1) @ (self._force_b(x, u) * dt) + self._g * dt
+        dv_n = 0.5 * (c0 + c1) @ (self._force_b(x, u)[0] * dt) + self._g * dt
         v0 = x.v_ned.copy()
         x.v_ned = v0 + dv_n
         x.p_ned = x.p_ned + 0.5 * (v0 + x.v_ned) * dt
@@ -208,7 +206,7 @@ class InsProcess:
         block by block (F_pv·F_v•, F_vθ·F_θ•, F_θθ·F_θ•) instead of a dense N_ERR × N_ERR product: the profile's
         largest single cost of a step (docs/performance.md)."""
         dt = u.dt_s
-        f_b = self._force_b(x, u)
+        f_b, a_b = self._force_b(x, u)
         w_b = self._rate_b(x, u)
         c = dcm_from_quat(quat_multiply(x.q_nb, quat_exp(0.5 * w_b * dt)))
         if dt != self._phi_dt:  # the diagonal: 1 − aΔt + ½(aΔt)², constant while Δt is
@@ -227,7 +225,7 @@ class InsProcess:
         phi[3:6, 9:12] = h * cf
         phi[3:6, 12:15] = -dt * ca
         if self.accel_m_err:
-            cu = c @ np.kron(_I3, (u.dvel_b / dt - x.b_accel_b)[:2])  # Ĉ·Ua: δMa·f̃ = Ua·δma (two columns)
+            cu = c @ np.kron(_I3, a_b[:2])  # Ĉ·Ua: δMa·f̃ = Ua·δma (two columns)
             phi[0:3, _AM] = -h * cu
             phi[3:6, _AM] = -dt * cu
         phi[6:9, 6:9] = _I3 - dt * wx + h * (wx @ wx)
