@@ -175,7 +175,9 @@ def test_the_force_model_is_fused_from_complete_port_frames_only(world: dict[str
     r = _runner(world, ("vdm-deim",), s)
     f = r.filters["vdm-deim"]
     r.run_until(99.0)
-    assert f.counts["aero_force"] > 500 and "force_incomplete_frame" not in f.counts
+    fused_s = 99.0 - float(t[0])  # port frames from the start, the force model at its own rate
+    assert f.counts["aero_force"] > 0.5 * f.config.force_fusion_rate_hz * fused_s
+    assert "force_incomplete_frame" not in f.counts
     r.run_until(100.5)  # the port frames' last complete one, fused at the filter's time
     force0, airdata0 = f.counts["aero_force"], f.counts["ports_airdata"]
     r.run_until(129.9)
@@ -183,7 +185,36 @@ def test_the_force_model_is_fused_from_complete_port_frames_only(world: dict[str
     airdata = f.counts["ports_airdata"] + f.rejected.get("ports_airdata", 0) - airdata0
     assert airdata > 200 and f.counts["force_incomplete_frame"] >= airdata
     r.run_until(140.0)
-    assert f.counts["aero_force"] > force0 + 50  # the port is back: so is the force model
+    assert f.counts["aero_force"] > force0 + 0.5 * f.config.force_fusion_rate_hz * 10.0  # the port is back: so is
+    # the force model
+
+
+def test_the_force_model_is_fused_at_its_own_rate_and_judged_at_every_frame(
+    world: dict[str, Any], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Successive port frames share the force model's error (it is a function of the flight condition): `vdm`
+    fuses it at ``force_fusion_rate_hz``, not at the aiding rate, while the FDI, whose thresholds were set on
+    every frame's innovation, still judges every frame."""
+    r = _runner(world, ("vdm",))
+    f = r.filters["vdm"]
+    r.run_until(60.0)
+    assert f.fdi is not None
+    judged: list[float] = []
+    observe = f.fdi.observe
+
+    def counting(source: str, t_s: float, nis: float, dim: int) -> Any:
+        if source == "force":
+            judged.append(t_s)
+        return observe(source, t_s, nis, dim)
+
+    monkeypatch.setattr(f.fdi, "observe", counting)
+    fused0 = f.counts["aero_force"] + f.rejected.get("aero_force", 0)
+    r.run_until(100.0)
+    fused = f.counts["aero_force"] + f.rejected.get("aero_force", 0) - fused0
+    rate = f.config.force_fusion_rate_hz
+    assert rate < f.config.aiding_rate_hz
+    assert abs(fused - 40.0 * rate) <= 2, (fused, rate)
+    assert len(judged) >= 0.9 * 40.0 * f.config.aiding_rate_hz, len(judged)
 
 
 def test_the_force_models_side_force_bias_is_learnt(world: dict[str, Any], monkeypatch: pytest.MonkeyPatch) -> None:
