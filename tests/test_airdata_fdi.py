@@ -547,13 +547,15 @@ def test_a_pull_up_the_line_knows_is_no_fault_and_a_step_off_the_line_is() -> No
 
 def test_in_an_outage_the_pose_is_cloned_for_the_free_ins_and_a_wind_event_anchors_on_a_clone() -> None:
     # the free INS after a wind event runs from the filter's own pose at its window's start; that pose is a
-    # clone of the filter's (engine clones), so the fix counts only what happened since (docs/navigation.md)
+    # clone of the filter's (engine clones), so the fix counts only what happened since (docs/navigation.md). The
+    # product mode goes back to a checkpoint instead where it has one (tests/test_wind_rewind.py); the ablation
+    # without it always takes this path
     from vdm_aero.nav.contracts import ImuIncrement
     from vdm_aero.nav.filter import CLONE_EVERY_S, NavConfig, NavFilter
     from vdm_aero.vehicle import load_vehicle
 
     cfg = NavConfig(vehicle=load_vehicle("uav-2m"), origin_alt_m=50.0, mag_field_ned_ut=np.array([20.1, -4.9, 46.5]))
-    f = NavFilter("vdm", cfg)
+    f = NavFilter("vdm-no-rewind", cfg)
     f_b = np.array([0.0, 0.0, -9.80665])
     f.initialise(0.0, np.zeros(3), np.array([19.0, 0.0, 0.0]), f_b, cfg.mag_field_ned_ut)
     assert f.engine is not None and f.wind_change is not None and f.x is not None

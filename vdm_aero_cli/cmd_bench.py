@@ -53,7 +53,7 @@ def register(sub: Any) -> None:
     n.add_argument("--modes", default="all", help="comma-separated navigation modes (default all), or the "
                    "ablations vdm-no-force, vdm-no-net, vdm-no-pitot, vdm-no-deviation, vdm-no-gradient, "
                    "vdm-no-gyro-scale, vdm-no-accel-scale, vdm-no-compass-check, vdm-no-throttle-range, "
-                   "vdm-no-aided-fit")  # fmt: skip
+                   "vdm-no-aided-fit, vdm-no-rewind")  # fmt: skip
     n.add_argument("--out", type=Path, default=Path("out/bench/nav-drift"), help="report directory")
     n.add_argument("--models", type=Path, help="directory with data/uav-envelope and models/ (default: built in --out)")
     n.add_argument("--calibration-minutes", type=float, default=10.0, help="in-flight calibration length [min]")

@@ -22,11 +22,12 @@ for logs, the service for live MAVLink). Calls must come in time order; each tak
 from __future__ import annotations
 
 import copy
+import functools
 import math
 from collections import deque
-from collections.abc import Collection
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, field, replace
-from typing import Any, Final
+from typing import Any, Concatenate, Final, ParamSpec, TypeVar
 
 import numpy as np
 
@@ -156,6 +157,9 @@ class ModeSpec:
     # through the turns is the heading's teacher, and a compass held at 1.5 µT would teach them its residual
     # deviation instead (docs/navigation.md, "The gyro's scale and cross-axis errors")
     mag_sigma_aided_ut: float | None = None
+    # a wind event in an outage goes back to the filter before the change and fuses the window again with the
+    # wind live (NavFilter._rewind); without it, a free INS from a clone of the pose is fused once it is over
+    wind_rewind: bool = False
     description: str = ""
 
     def force_model(self, available: Collection[str]) -> str | None:
@@ -220,6 +224,7 @@ MODES: Final = {
         force="best",
         fdi=True,
         wind_relearn=True,
+        wind_rewind=True,
         mag_deviation=True,
         wind_gradient=True,
         compass_check=True,
@@ -228,8 +233,9 @@ MODES: Final = {
         gyro_m_err=True,
         accel_m_err=True,
         mag_sigma_aided_ut=EKF3_MAG_SIGMA_UT,
-        description="the product: pitot + port air data + force model, air-data FDI, wind relearnt with its "
-        "gradient with height, the gyro's and the accelerometer's scale and cross-axis errors and the compass "
+        description="the product: pitot + port air data + force model, air-data FDI, wind relearnt (the window "
+        "before a wind change fused again) with its gradient with height, the gyro's and the accelerometer's "
+        "scale and cross-axis errors and the compass "
         "deviation learnt in flight, "
         "the compass at EKF3's σ while GNSS aids, the compass's heading alone in an outage once "
         "its field's strength is off or the throttle is held outside what the deviation was learnt on, and at "
@@ -252,6 +258,9 @@ ABLATIONS: Final = {
     "vdm-no-accel-scale": replace(_VDM, accel_m_err=False,
                                   description="ablation: vdm without the accelerometer's scale and cross-axis error "
                                   "states"),
+    "vdm-no-rewind": replace(_VDM, wind_rewind=False,
+                             description="ablation: vdm whose wind event fuses a free INS from a clone of the pose "
+                             "once the change is over, instead of fusing the window before it again"),
     "vdm-no-gradient": replace(_VDM, wind_gradient=False,
                                description="ablation: vdm without the wind's gradient with height (WIND_PSCALE)"),
     # not an ablation but the variant measured against it (docs/navigation.md, "The compass's heading alone")
@@ -301,6 +310,46 @@ WIND_STEP_M_S: Final = 6.0  # |Δw| from before the change to its end: a step th
 # from; a clone costs one n × 4 product per IMU step, and the window's start need not be exact
 CLONE_EVERY_S: Final = 2.0
 _WINDOW_POSE: Final = InsWindowFix(INS_WINDOW_SIGMA_P_M, INS_WINDOW_SIGMA_V_M_S)  # what is cloned: p, v north, east
+
+_P = ParamSpec("_P")
+_R = TypeVar("_R")
+
+
+def _input(method: Callable[Concatenate[NavFilter, _P], _R]) -> Callable[Concatenate[NavFilter, _P], _R]:
+    """A sensor input from outside the filter: logged while a wind event could rewind to before it (a call
+    from inside the filter, such as a fix released from its queue, is not an input), and a rewind asked for
+    while it ran is done once it has returned (:meth:`NavFilter._rewind`)."""
+    name = method.__name__
+
+    @functools.wraps(method)
+    def wrapper(self: NavFilter, *args: _P.args, **kw: _P.kwargs) -> _R:
+        if self._input_depth:
+            return method(self, *args, **kw)
+        if self._checkpoints and not self._replaying:
+            self._input_seq += 1
+            kept = tuple(np.array(a) if isinstance(a, np.ndarray) else a for a in args)  # the caller may reuse its
+            self._input_log.append((self._input_seq, name, kept, kw))
+        self._input_depth = 1
+        try:
+            return method(self, *args, **kw)
+        finally:
+            self._input_depth = 0
+            if self._rewind_request is not None:
+                self._rewind()
+
+    return wrapper
+
+
+def _barrier(method: Callable[Concatenate[NavFilter, _P], _R]) -> Callable[Concatenate[NavFilter, _P], _R]:
+    """A call that changes the filter other than by a sensor's reading (a reboot, a restore): no rewind
+    crosses it."""
+
+    @functools.wraps(method)
+    def wrapper(self: NavFilter, *args: _P.args, **kw: _P.kwargs) -> _R:
+        self._drop_checkpoints()
+        return method(self, *args, **kw)
+
+    return wrapper
 
 
 @dataclass(frozen=True)
@@ -521,6 +570,16 @@ class NavFilter:
         self._wind_live[IDX["wind"]] = False
         self._wind_live_until_s = -math.inf
         self._anchor_clone_s: float | None = None  # the clone the wind detector's free INS runs from
+        # in an outage with the wind held: the whole filter every CLONE_EVERY_S, and the inputs since the oldest,
+        # so that a wind event can go back to before the change and fuse the window again with the wind live
+        self._checkpoints: deque[tuple[float, int, NavFilter]] = deque()  # (t [s], input sequence, filter)
+        self._input_log: deque[tuple[int, str, tuple[Any, ...], dict[str, Any]]] = deque()
+        self._input_seq = 0
+        self._input_depth = 0
+        self._rewind_request: float | None = None
+        self._wind_change_seen_m_s = 0.0  # the detector's |Δw| at the last wind event [m/s]
+        self._replaying = False
+        self._rewound_anchor = False  # the detector's anchor is a rewind's: no free-INS fix at its end
         self._gnss_scale = (1.0, 1.0)  # the GNSS error model's scale from the receiver's accuracy (gnss)
         self.fdi = AirDataFdi() if self.spec.fdi else None
         self.wind_change = WindChangeDetector() if self.spec.wind_relearn else None
@@ -578,6 +637,8 @@ class NavFilter:
         out.compass_check = copy.deepcopy(self.compass_check, memo)
         out.compass_fit = copy.deepcopy(self.compass_fit, memo)
         out._carried = copy.deepcopy(self._carried, memo)
+        out._checkpoints = deque((t, k, copy.deepcopy(c, memo)) for t, k, c in self._checkpoints)
+        out._input_log = deque(self._input_log)
         return out
 
     # ------------------------------------------------------------------------------------- status
@@ -639,6 +700,7 @@ class NavFilter:
         }  # fmt: skip
 
     # -------------------------------------------------------------------------------- initialise
+    @_barrier
     def initialise(
         self, t_s: float, p_ned: F64Array, v_ned: F64Array, f_b: F64Array, mag_b_ut: F64Array | None
     ) -> None:
@@ -689,6 +751,7 @@ class NavFilter:
             self._carried = None
 
     # ------------------------------------------------------------------------------------ predict
+    @_input
     def imu(self, t_s: float, inc: ImuIncrement, temperature_c: float | None = None) -> None:
         """One IMU increment ending at ``t_s`` (``temperature_c``: the outside-air temperature [°C] for the
         density, as :class:`~vdm_aero.nav.driver.NavDriver` picks it)."""
@@ -736,6 +799,73 @@ class NavFilter:
             self._att_hole, self._hole_cov = None, None  # no ATTITUDE after the hole in time: the rest go on
             self.counts["ap_rotation_missed"] = self.counts.get("ap_rotation_missed", 0) + 1
         self._release_pending()
+        self._checkpoint(t_s)
+
+    def _checkpoint(self, t_s: float) -> None:
+        """In an outage with the wind held, keep the whole filter every :data:`CLONE_EVERY_S` as far back as a wind
+        event's window reaches, and the inputs since the oldest kept (:meth:`_rewind`); otherwise none."""
+        wc = self.wind_change
+        if wc is None or not self.spec.wind_rewind or self._replaying:
+            return
+        if not self.in_outage or t_s < self._wind_live_until_s:
+            self._drop_checkpoints()
+            return
+        cps = self._checkpoints
+        if cps and t_s - cps[-1][0] < CLONE_EVERY_S - 1e-6:
+            return
+        while len(cps) > 1 and cps[1][0] <= t_s - wc.window_s - 2.0 * CLONE_EVERY_S:
+            cps.popleft()
+        while self._input_log and cps and self._input_log[0][0] <= cps[0][1]:
+            self._input_log.popleft()
+        kept, log = self._checkpoints, self._input_log
+        self._checkpoints, self._input_log = deque(), deque()
+        try:
+            snap = copy.deepcopy(self)
+        finally:
+            self._checkpoints, self._input_log = kept, log
+        kept.append((t_s, self._input_seq, snap))
+
+    def _drop_checkpoints(self) -> None:
+        self._checkpoints.clear()
+        self._input_log.clear()
+
+    def _rewind(self) -> None:
+        """A wind event in an outage: go back to the filter as it was before the window the change was seen in,
+        forget the wind there (σ a shear's size) and fuse every input since again with the wind live. Until the
+        change was seen, the air data with the old wind pulled the velocity, the position and the attitude by
+        the change, and the filter's σ knew nothing of it; fused again with the wind live, the air data move
+        the wind, and the INS carries the pose through the window (Bar-Shalom, Li & Kirubarajan 2001, §11.8:
+        reprocessing after a detected manoeuvre onset)."""
+        t_event, self._rewind_request = self._rewind_request, None
+        assert t_event is not None and self.wind_change is not None
+        start = t_event - self.wind_change.window_s
+        before = [c for c in self._checkpoints if c[0] <= start]
+        t0, seq, snap = before[-1] if before else self._checkpoints[0]
+        new = copy.deepcopy(snap)
+        new._input_depth = 0  # it was taken inside an IMU step
+        assert new.engine is not None
+        new.engine.reset_states(IDX["wind"], np.diag(np.square(WIND_RELEARN_SIGMA_M_S)))
+        new._wind_live_until_s = t_event + WIND_RELEARN_S
+        # the change under way is a random walk of the wind whose σ over the detector's window is the change seen
+        change = max(self._wind_change_seen_m_s, WIND_STEP_M_S)
+        new.process.wind_change_m_s2 = change / math.sqrt(self.wind_change.window_s)
+        new._replaying = True
+        for k, name, args, kw in self._input_log:
+            if k > seq:
+                getattr(new, name)(*args, **kw)
+        new._replaying = False
+        # what happened stays as it happened: the counts (the replay counted the window's fusions again), the
+        # events (the wind event itself is the first filter's) and the time
+        new.counts = dict(self.counts)
+        new.counts["wind_rewound"] = new.counts.get("wind_rewound", 0) + 1
+        if new.fdi is not None and self.fdi is not None:
+            new.fdi.events = list(self.fdi.events)
+            new.fdi.last_wind_event_s = self.fdi.last_wind_event_s
+        if new.wind_change is not None:
+            new.wind_change.anchor(t0)  # the change's end is still awaited: then the gust hands it to the wind
+            new._rewound_anchor = True
+        self._drop_checkpoints()
+        self.__dict__.update(new.__dict__)
 
     def _release_pending(self) -> None:
         """Fuse what waited for the IMU (or for the autopilot's rotation across a hole) and may go now."""
@@ -796,6 +926,7 @@ class NavFilter:
         if count:
             self.counts["imu_gaps_reinitialised"] = self.counts.get("imu_gaps_reinitialised", 0) + 1
 
+    @_barrier
     def autopilot_rebooted(self) -> None:
         """The autopilot rebooted in flight: its IMU stopped for a boot of unknown length (the first sample after
         it says only how long it has been up again) and was calibrated anew. With GNSS at hand the pose starts
@@ -805,6 +936,7 @@ class NavFilter:
             self.counts["reboots_reinitialised"] = self.counts.get("reboots_reinitialised", 0) + 1
         self.imu_recalibrated()
 
+    @_barrier
     def imu_recalibrated(self) -> None:
         """The autopilot rebooted: it measured new gyro offsets at boot (ArduPilot INS_GYR_CAL, PX4's
         startup calibration) and a power cycle redraws the IMU's turn-on biases, so the bias estimates no longer
@@ -836,6 +968,7 @@ class NavFilter:
         idx = slow_index()
         return values.astype(np.float64), self.engine.P[np.ix_(idx, idx)].copy()
 
+    @_barrier
     def restore_slow_states(self, values: F64Array, cov: F64Array, *, keep_wind: bool, keep_aero: bool = True,
                             keep_gm: bool = True) -> list[str]:  # fmt: skip
         """Put slow states into an initialised filter, independent of its new pose; returns the names
@@ -1034,6 +1167,7 @@ class NavFilter:
         r = self.adaptive.covariance(model.name, model.covariance()) if adaptive else model.covariance()
         return self.engine.nis(y, h, r)
 
+    @_input
     def gnss(self, t_valid_s: float, t_s: float, p_ned: F64Array, v_ned: F64Array, h_acc_m: float = math.nan,
              v_acc_m: float = math.nan) -> None:  # fmt: skip
         """A GNSS fix valid at ``t_valid_s`` that arrived at ``t_s`` (local NED position [m], velocity [m/s];
@@ -1172,6 +1306,7 @@ class NavFilter:
         past.p_ned, past.v_ned = p_k + self._shift[:3] + t_k * self._shift[3:], v_k + self._shift[3:]
         return past
 
+    @_input
     def baro(self, t_s: float, pressure_pa: float) -> None:
         """Static pressure [Pa]: the altitude measurement and the air density (with the outside-air
         temperature of :meth:`imu`)."""
@@ -1187,6 +1322,7 @@ class NavFilter:
             self.x.b_baro_m = float(z[0]) - (self.config.origin_alt_m - float(self.x.p_ned[2]))
         self._fuse(Measurement(t_s, z, BaroAltitude(self.config.origin_alt_m, self.config.baro_sigma_m)))
 
+    @_input
     def mag(self, t_s: float, field_b_ut: F64Array) -> None:
         """The body-frame magnetic field [µT], less the deviation learnt in flight when the mode learns it."""
         if self.x is not None and not self._wait_for_imu("mag", t_s, "_fuse_mag", t_s, field_b_ut):
@@ -1250,6 +1386,7 @@ class NavFilter:
                 self.counts[key] = self.counts.get(key, 0) + 1
         return check.biased
 
+    @_input
     def ap_attitude(self, t_s: float, q_nb: F64Array) -> None:
         """The autopilot's own attitude estimate (body FRD → NED quaternion): fused where the config asks for it
         (:attr:`NavConfig.ap_attitude_sigma_rad`: a log whose IMU is too slow to integrate); otherwise its change
@@ -1327,10 +1464,12 @@ class NavFilter:
         self.engine.P = 0.5 * (p_new + p_new.T)
         self.counts["ap_rotation"] = self.counts.get("ap_rotation", 0) + 1
 
+    @_input
     def servo(self, t_s: float, controls_rad: F64Array, throttle: float) -> None:
         self.inputs.controls_rad = np.asarray(controls_rad, float)
         self.inputs.throttle = throttle
 
+    @_input
     def pitot(self, t_s: float, dp_pa: float) -> None:
         """Pitot differential pressure [Pa] (fused by the pitot modes, and by port modes in fallback)."""
         if self.x is None or not (self.spec.pitot or self.fallback) or not math.isfinite(dp_pa):
@@ -1368,6 +1507,7 @@ class NavFilter:
     def uses_ports(self) -> bool:
         return bool(self.spec.ports_airdata or (self.spec.force not in (None, "classic")))
 
+    @_input
     def ports(self, frame: PortFrame) -> None:
         """A processed port frame (:class:`~vdm_aero.nav.ports_frontend.PortFrame`)."""
         self.port_health = (frame.n_ok, len(frame.ok))
@@ -1470,6 +1610,7 @@ class NavFilter:
         if self.fdi is not None and self.fdi.wind_changed(frame.t_s, change) is None:
             return
         self.counts["fdi_wind_changed"] = self.counts.get("fdi_wind_changed", 0) + 1
+        self._wind_change_seen_m_s = change
         self._relearn_wind(frame.t_s)
 
     def _clone_pose(self, t_s: float) -> None:
@@ -1493,10 +1634,16 @@ class NavFilter:
         let it be estimated for the FDI's relearning time, also in an outage. Until the change was seen, the air
         data with the old wind pulled the velocity (and so the position) off by the change: in an outage, once
         the change is over and has stayed, the horizontal pose a free INS gives from the filter's pose before
-        it puts them back, and the gust state hands the new wind over (:meth:`_settle_wind_change`)."""
+        it puts them back, and the gust state hands the new wind over (:meth:`_settle_wind_change`). Where a
+        checkpoint from before the window is kept, the filter goes back to it instead once the input at hand
+        has been taken (:meth:`_rewind`)."""
         assert self.engine is not None
+        if self._checkpoints and self.in_outage and not self._replaying:
+            self._rewind_request = t_s
+            return
         self.engine.reset_states(IDX["wind"], np.diag(np.square(WIND_RELEARN_SIGMA_M_S)))
         self._wind_live_until_s = t_s + WIND_RELEARN_S
+        self._rewound_anchor = False
         keys, wc = self.engine.clone_keys, self.wind_change
         if wc is not None and self.in_outage and keys:
             # the free INS starts from the cloned pose nearest the window's start, before the change
@@ -1537,6 +1684,7 @@ class NavFilter:
         if tau is None:
             return
         if tau >= INS_WINDOW_MAX_S:
+            self.process.wind_change_m_s2, self._rewound_anchor = 0.0, False
             wc.release()
             self.counts["ins_window_abandoned"] = self.counts.get("ins_window_abandoned", 0) + 1
             return
@@ -1548,9 +1696,19 @@ class NavFilter:
         fix = wc.ins_window(t_s) if self.in_outage and clone in self.engine.clone_keys else None
         turned = wc.ins_turned()
         wc.release()
+        self.process.wind_change_m_s2 = 0.0  # the change is over
         # the free INS turns its increments to NED with the filter's heading: with the compass gated out lately
         # the heading is what is wrong, and the "change" is the INS and the air data turned apart by it
         heading_doubt = t_s - self._last_rejected_s.get("mag", -math.inf) < HEADING_DOUBT_S
+        if self._rewound_anchor:
+            # the rewind fused the window again with the wind live: no free INS to fuse, the gust's share to hand
+            self._rewound_anchor = False
+            if step is None or step < WIND_STEP_M_S:
+                self.counts["ins_window_abandoned"] = self.counts.get("ins_window_abandoned", 0) + 1
+                return
+            self._hand_gust_to_wind()
+            self._wind_live_until_s = max(self._wind_live_until_s, t_s + WIND_RELEARN_S)
+            return
         if fix is None or clone is None or step is None or step < WIND_STEP_M_S or heading_doubt:
             # the change went back (a gust, turbulence with the INS's own error on top): no step to undo
             self.counts["ins_window_abandoned"] = self.counts.get("ins_window_abandoned", 0) + 1

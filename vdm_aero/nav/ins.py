@@ -116,6 +116,7 @@ class InsProcess:
         q[IDX["gnss"]] = 2.0 / n.gnss_tau_s * np.square([n.gnss_sigma_ne_m, n.gnss_sigma_ne_m, n.gnss_sigma_d_m])
         self._gust_rate = 1.0 / np.asarray(n.gust_tau_s)
         self.wind_height_rate_scale = 0.0  # > 0: wind noise × (1 + scale·|ḣ|), EKF2/3's WIND_PSCALE
+        self.wind_change_m_s2 = 0.0  # > 0: a wind change under way, its horizontal noise density [m/s/√s] added
         self.wind_gradient = True  # the wind follows its gradient with height (freeze_wind_gradient: not)
         self.gyro_m_err = True  # the gyro's scale and cross-axis errors correct it (freeze_gyro_m_err: not)
         self.accel_m_err = True  # the same for the accelerometer (freeze_accel_m_err: not)
@@ -254,9 +255,12 @@ class InsProcess:
     def noise(self, x: NavState, u: ImuIncrement) -> F64Array:
         """Q_d = G·Q_c·Gᵀ·Δt (the velocity noise rotated to NED; its covariance is isotropic); the wind's
         grows with the height rate when :attr:`wind_height_rate_scale` is set (a climb or descent crosses
-        the wind gradient: EKF2/3 scale the wind's process noise the same way)."""
-        if self.wind_height_rate_scale <= 0.0:
+        the wind gradient: EKF2/3 scale the wind's process noise the same way), and the horizontal wind's by
+        :attr:`wind_change_m_s2` while a wind change is under way."""
+        if self.wind_height_rate_scale <= 0.0 and self.wind_change_m_s2 <= 0.0:
             return np.diag(self._qc * u.dt_s)
         q = self._qc.copy()
-        q[IDX["wind"]] *= (1.0 + self.wind_height_rate_scale * abs(float(x.v_ned[2]))) ** 2
+        if self.wind_height_rate_scale > 0.0:
+            q[IDX["wind"]] *= (1.0 + self.wind_height_rate_scale * abs(float(x.v_ned[2]))) ** 2
+        q[_W] += self.wind_change_m_s2**2
         return np.diag(q * u.dt_s)
