@@ -391,8 +391,12 @@ def suite_flight(
         Fault("link_silence", *_span(w["link silent 10 s"])),
         Fault("port_missing", *_span(w["all ports lost (in the outage)"]), ports=("*",)),
     )
+    # the service saves on its own wall clock, and the full disk's 20 s of world time are 5 s of wall time at the
+    # suite's 4×: a save every 5 s could fall on both sides of the window and never meet the full disk (a CI run,
+    # 2026-12-02); one a second meets it four or five times
     flight = FaultFlight(run, faults, kill9_at_s=(w["kill -9, restart"][0],), disk_full_s=w["state directory full"],
-                         rogue_s=w["rogue unsigned sender"], extra_config={"status_every_s": 1})  # fmt: skip
+                         rogue_s=w["rogue unsigned sender"], save_every_s=1.0,
+                         extra_config={"status_every_s": 1})  # fmt: skip
     return flight, w
 
 
