@@ -125,3 +125,26 @@ def test_resetting_a_state_forgets_its_covariance_with_the_clones_and_dropping_k
     h[0, 0] = 1.0
     _, res = eng.update_relative(np.array([1.0]), h, np.array([[0.0, -1.0]]), np.array([[0.5]]), 2.0)
     assert res.nis == pytest.approx(1.0 / (4.0 + p_before[0, 0] + 0.5), rel=1e-12)
+
+
+def test_the_prediction_by_coupled_rows_is_filterpys_dense_one() -> None:
+    """A Φ diagonal but for a few rows (the INS's shape: the pose and the wind couple, the rest decay), predicted
+    by those rows, and with a clone carried: the same P and clone covariances as filterpy's dense ΦPΦᵀ + Q."""
+    rng = np.random.default_rng(23)
+    n, rows = 12, np.array([0, 1, 2, 7])
+    p0 = _spd(rng, n)
+    dense, by_rows = EkfEngine(p0.copy()), EkfEngine(p0.copy())
+    for eng in (dense, by_rows):
+        eng.clone(1.0, np.eye(2, n))
+    for _ in range(5):
+        phi = np.diag(rng.uniform(0.9, 1.0, n))
+        phi[rows] += 0.1 * rng.normal(size=(len(rows), n))
+        q = np.diag(rng.uniform(0.0, 0.1, n))
+        dense.predict(phi, q)
+        by_rows.predict(phi, q, rows)
+    np.testing.assert_allclose(by_rows.P, dense.P, rtol=1e-13, atol=0)
+    np.testing.assert_allclose(by_rows._cross, dense._cross, rtol=1e-13, atol=0)
+    phi[5, 3] = 0.5  # an entry outside the rows it is told of is not carried: the contract has no slack
+    by_rows.predict(phi, q, rows)
+    dense.predict(phi, q)
+    assert not np.allclose(by_rows.P, dense.P, rtol=1e-6)

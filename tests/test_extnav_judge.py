@@ -159,6 +159,30 @@ def test_one_odometry_against_a_hand_computed_kalman_update() -> None:
     np.testing.assert_allclose(state.p_err_m, [31.5, 29.5], atol=1e-12)
 
 
+def test_an_outages_end_records_the_last_position_the_estimate_and_the_gates_variance() -> None:
+    """The hand computation above, then the outage ends: the record holds the last ODOMETRY's error as it came (e₂),
+    the estimate after fusing it, the dead reckoning's error handed in, and the innovation variance the gate took
+    for e₂ before fusing it, P_N + P_E + 2R = 0.9 + 0.9 + 2 · 1 m²; an outage without a judged position records
+    nothing."""
+    src = Ek3SourceParams(src2=replace(Ek3SourceParams().src2, velxy=SourceXY.NONE))
+    state, ext = _judges(Ek3ExtNavRules(sources=src))
+    _start(state, ext, (0.3, -0.2), 10.0)
+    ext.set_source_set(2, 10.0)
+    e1, e2 = np.array([1.0, -1.0]), np.array([1.5, -0.5])
+    _odo(ext, 10.0, tuple(e1), pose_covariance=_cov(1.0))
+    _odo(ext, 10.1, tuple(e2), pose_covariance=_cov(1.0))
+    ext.outage_ended(np.array([4.0, -3.0]))
+    (end,) = ext.outage_end
+    est = e1 + 0.9 / 1.9 * (e2 - e1)
+    assert (end["odometry_n_m"], end["odometry_e_m"]) == (1.5, -0.5)
+    np.testing.assert_allclose([end["estimate_n_m"], end["estimate_e_m"]], est, rtol=1e-9)
+    assert (end["free_n_m"], end["free_e_m"]) == (4.0, -3.0)
+    assert end["innovation_var_m2"] == pytest.approx(3.8, rel=1e-9)
+    ext.outage_started()
+    ext.outage_ended(np.zeros(2))
+    assert len(ext.outage_end) == 1
+
+
 def test_beyond_the_glitch_radius_the_position_resets_to_extnav_with_its_variance() -> None:
     """After 100 s of σv = 0.3 m/s, P_NN + P_EE = 2 · 900 m² > EK3_GLITCH_RAD² = 625 m²: ResetPosition onto the sample,
     P_pos = (25/2)² per axis, position–velocity covariance zeroed, the sample not fused."""

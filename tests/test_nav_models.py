@@ -163,6 +163,24 @@ def test_ins_transition_is_the_second_order_series_of_its_error_dynamics() -> No
         np.testing.assert_allclose(ins.transition(x, u), np.eye(N_ERR) + fdt + 0.5 * fdt @ fdt, rtol=0, atol=1e-13)
 
 
+@pytest.mark.parametrize("frozen", [(), ("wind_gradient",), ("gyro_m_err", "accel_m_err"),
+                                    ("wind_gradient", "gyro_m_err", "accel_m_err")])  # fmt: skip
+def test_only_the_coupled_rows_of_the_ins_transition_leave_its_diagonal(frozen: tuple[str, ...]) -> None:
+    """The engine's prediction scales every row of Φ but :attr:`InsProcess.coupled_rows` as a diagonal one, so
+    an entry anywhere else would be lost without a word: Φ's off-diagonal entries must be in those rows, and
+    (so the rows are not merely a superset) every one of them must have some."""
+    rng = np.random.default_rng(13)
+    ins = InsProcess()
+    for name in frozen:
+        getattr(ins, f"freeze_{name}")()
+    for dt in (0.02, 0.0025):
+        x = _state(rng)
+        u = ImuIncrement(rng.normal(0.0, 0.5, 3) * dt, (np.array([0.0, 0.0, -9.8]) + rng.normal(0, 2, 3)) * dt, dt)
+        phi = ins.transition(x, u)
+        off = phi - np.diag(np.diag(phi))
+        assert set(np.flatnonzero(np.any(off != 0.0, axis=1)).tolist()) == set(ins.coupled_rows.tolist())
+
+
 def test_gate_rejects_a_300_m_jump_and_accepts_a_normal_fix() -> None:
     p0 = np.diag(np.full(N_ERR, 1.0))
     eng = EkfEngine(p0)

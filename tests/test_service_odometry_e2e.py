@@ -7,16 +7,19 @@ and none excluded in a healthy flight."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from vdm_aero.nav.filter import NavConfig
-from vdm_aero_cli.service_sitl import ServiceRun, run_service_sitl, score_service, site_mag_field_ut
+from vdm_aero_cli.service_sitl import ServiceRun, run_service_sitl, site_mag_field_ut
 
 pytestmark = pytest.mark.slow
 
 HOLD_S = 10.0  # outputs.source_switch.gnss_hold_s (the default)
+CHI2_2DOF_95 = -2.0 * math.log(0.05)  # χ²'s 95 % quantile at 2 degrees of freedom (closed form for 2)
 
 
 def test_the_autopilot_flies_the_outage_on_the_services_odometry(
@@ -45,16 +48,22 @@ def test_the_autopilot_flies_the_outage_on_the_services_odometry(
     v = mock["odometry_outage_verdicts"]
     came = sum(v.values())
     assert v.get("used", 0) >= 0.9 * came and came >= 0.9 * 5.0 * (b - a), v
-    # EKF3 follows ExternalNav: at the outage's end the mock's estimate is near where the service put it, not where
-    # its own dead reckoning would be. Near: within half the σ the service reported, which is the posErr EKF3 weighs
-    # the ODOMETRY's position with; its velocity (VISO_VEL_M_NSE, 0.1 m/s) it follows closer, so a service whose
-    # error grows fast at the end (25 m in the last 8 s here) is trailed. Measured on this flight (2026-12-01): the
-    # service 37.8 m (σ 26.4 m) and the mock 27.7 m; with vdm's gyro-scale states 30.8 m (σ 28.6 m) and 17.4 m. A
-    # mock that ignored the service would be at its own dead reckoning's 3.8 m, 27 m off
-    end = mock["outage_end_errors"][0]
-    score = score_service(res)
-    own, sigma = score["final_error_m"], score["sigma_h_end_m"]
-    assert abs(end["with_service_m"] - own) <= 0.5 * sigma, (end, own, sigma)
+    # EKF3 follows ExternalNav: at the outage's end the mock's estimate is where FuseVelPosNED's weights put it, near
+    # the service's last ODOMETRY position, not at its own dead reckoning. EKF3 weighs that position with posErr
+    # clamped to 10 m (R_pos, extnav_judge.py) and the velocity with VISO_VEL_M_NSE (0.1 m/s): it follows the
+    # service's velocity closely and its position loosely, so where the service's position moves by its own
+    # updates more than its velocity says, EKF3 trails by up to about the innovation's σ. Near is therefore inside
+    # the 95 % region of the innovation EKF3's gate takes, |Δ|² ≤ χ²₂(0.95) · (P_N + P_E + 2R) / 2, and nearer than
+    # its own dead reckoning. Measured (2026-12-02, one run): the service's last ODOMETRY 34.9 m off, the mock 20.2 m,
+    # 14.9 m between them against a bound of 24.5 m; the dead reckoning 3.8 m off, 33.2 m from the service's. (The
+    # test's earlier bound, half the σ the service reported, took the σ for EKF3's R; it failed that run: 14.6 m
+    # between the errors' sizes against 0.5 × 25.2 m. The service's own error moves by metres between runs of a
+    # real-time flight: 30.8–34.8 m.)
+    (fin,) = mock["odometry_outage_end"]
+    odo = np.array([fin["odometry_n_m"], fin["odometry_e_m"]])
+    gap = float(np.linalg.norm(np.array([fin["estimate_n_m"], fin["estimate_e_m"]]) - odo))
+    ignored = float(np.linalg.norm(np.array([fin["free_n_m"], fin["free_e_m"]]) - odo))
+    assert gap**2 <= CHI2_2DOF_95 * fin["innovation_var_m2"] / 2.0 and gap < ignored, (fin, gap, ignored)
     # the product mode fused each of its air-data sources all flight, and the FDI excluded none of them in
     # this healthy flight (a false alarm would show as an exclusion)
     health = svc["health"]

@@ -146,6 +146,10 @@ class RunSummary(TypedDict):
     # the EKF source set: {t_s, source_set (1..3), outage (index of the outage it fell in; -1 between outages)}
     odometry_verdicts: dict[str, int]
     odometry_outage_verdicts: dict[str, int]  # of the ODOMETRY that came during GNSS outages
+    # per outage that had an ExternalNav position judged: the last one's error against the truth as it came
+    # (odometry_n/e_m), the mock's estimate's then (estimate_n/e_m), its own dead reckoning's (free_n/e_m) [m], and
+    # FuseVelPosNED's innovation variance then, P_N + P_E + 2R (innovation_var_m2) [m²]
+    odometry_outage_end: list[dict[str, float]]
     source_set_switches: list[dict[str, float]]
     # as PX4: per message (GPS_INPUT, ODOMETRY, GLOBAL_POSITION_SENSOR) the verdicts of EKF2's rules, all and of
     # those that came during GNSS outages (sim/sitl/ekf2_judge.py); empty as ArduPilot
@@ -184,7 +188,7 @@ class _DeadReckoning:
         else:
             if self._in_outage:
                 self.judge.outage_ended(self.error_ned_m)
-                self.extnav.outage_ended()
+                self.extnav.outage_ended(self.error_ned_m[:2])
             factor = math.exp(-dt_s / cfg.recovery_tau_s)
             decayed = self.error_ned_m * factor
             self.error_rate_ned_m_s = (decayed - self.error_ned_m) / dt_s
@@ -411,6 +415,7 @@ class MockAutopilot:
             gps_input_outage_verdicts=dict(self._drift.judge.outage_verdicts),
             outage_end_errors=list(self._drift.judge.outage_end),
             odometry_verdicts=dict(self._drift.extnav.verdicts),
+            odometry_outage_end=list(self._drift.extnav.outage_end),
             odometry_outage_verdicts=dict(self._drift.extnav.outage_verdicts),
             source_set_switches=list(self._drift.extnav.switches),
             ekf2_verdicts={k: dict(v) for k, v in self._ekf2.verdicts.items()},

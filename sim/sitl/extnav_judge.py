@@ -203,6 +203,10 @@ class ExtNavJudge:
         self._reset_counter = 0  # AP_VisualOdom_Backend::_last_reset_counter
         self._reset_seen = 0  # changes of it not yet consumed by writeExtNavData
         self.pos_correction_ne_m = np.zeros(2)  # AP_VisualOdom_Backend::_pos_correction, horizontally
+        # per outage, at its end: the last position judged in it against the truth, as it came and as fused, the
+        # mock's own dead reckoning's, and FuseVelPosNED's innovation variance then (N + E, as its gate sums them)
+        self.outage_end: list[dict[str, float]] = []
+        self._last_pos: tuple[F64Array, float] | None = None  # (its error NE [m], its innovation variance [m²])
 
     # ------------------------------------------------------------------------------------ source sets
     def set_source_set(self, number: int, t_s: float) -> None:
@@ -220,8 +224,16 @@ class ExtNavJudge:
         self._outage = self._outages
         self._outages += 1
 
-    def outage_ended(self) -> None:
+    def outage_ended(self, free_error_ne_m: FloatArray) -> None:
+        """The outage's end: ``free_error_ne_m`` the mock's own dead reckoning's horizontal error then [m]."""
+        if self._last_pos is not None:
+            (e_p, var), p, free = self._last_pos, self.state.p_err_m, np.asarray(free_error_ne_m, dtype=np.float64)
+            self.outage_end.append({"odometry_n_m": float(e_p[0]), "odometry_e_m": float(e_p[1]),
+                                    "estimate_n_m": float(p[0]), "estimate_e_m": float(p[1]),
+                                    "free_n_m": float(free[0]), "free_e_m": float(free[1]),
+                                    "innovation_var_m2": var})  # fmt: skip
         self._outage = -1
+        self._last_pos = None
 
     # ------------------------------------------------------------------------------------ the messages
     def odometry(self, *, time_usec: int, frame_id: int, child_frame_id: int, pos_m: FloatArray, q: FloatArray,
@@ -298,6 +310,8 @@ class ExtNavJudge:
         sig_p = min(max(min(max(pos_err_m, viso.pos_m_nse), POS_ERR_MAX_M), R_POS_MIN_M), R_POS_MAX_M)
         sig_v = min(max(viso.vel_m_nse, R_VEL_MIN_M_S), R_VEL_MAX_M_S)
         pos_ok = use_pos and self._passes(e_p - st.p_err_m, 0, sig_p**2, r.pos_gate_sigma)
+        if use_pos:  # the innovation's variance as the gate takes it, before this sample is fused
+            self._last_pos = (e_p.copy(), float(st.P[0, 0, 0] + st.P[1, 0, 0] + 2.0 * sig_p**2))
         e_v, vel_ok = np.zeros(2), False
         if use_vel and v_ne_m_s is not None and truth_v is not None:
             e_v = v_ne_m_s - truth_v

@@ -885,7 +885,7 @@ class NavFilter:
 
     def _predict(self, phi: F64Array, qd: F64Array) -> None:
         assert self.engine is not None
-        self.engine.predict(phi, qd)
+        self.engine.predict(phi, qd, self.process.coupled_rows)
         if self._hole_cov is not None:  # everything since the hole's start that the autopilot's rotation measures
             self._hole_cov = phi @ self._hole_cov @ phi.T + qd
 

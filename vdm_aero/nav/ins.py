@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vdm_aero._typing import F64Array
+from vdm_aero._typing import F64Array, IntArray
 from vdm_aero.atmosphere import G0_M_S2
 from vdm_aero.nav.contracts import ImuIncrement
 from vdm_aero.nav.state import IDX, N_ERR, NavState
@@ -92,6 +92,8 @@ _W = slice(IDX["wind"].start, IDX["wind"].start + 2)  # the horizontal wind's ro
 _WG = IDX["wg"]
 _GM = IDX["gm"]
 _AM = IDX["am"]
+_POSE_ROWS = np.arange(9)  # p, v, θ: the rows of Φ that couple states (transition)
+_POSE_WIND_ROWS = np.r_[_POSE_ROWS, np.arange(_W.start, _W.stop)]  # ... and the horizontal wind's, with its gradient
 
 
 def _times_u(a: F64Array, u: F64Array) -> F64Array:
@@ -183,6 +185,14 @@ class InsProcess:
         if self.gyro_m_err:
             w_b = w_b - x.gyro_m_err_b @ w_b
         return np.asarray(w_b)
+
+    @property
+    def coupled_rows(self) -> IntArray:
+        """The rows of :meth:`transition`'s Φ with entries off its diagonal: the pose's (p, v, θ), and the
+        horizontal wind's while it follows its gradient. Every other row is diagonal (1, or a Gauss–Markov decay),
+        which :meth:`EkfEngine.predict <vdm_aero.nav.engine.EkfEngine.predict>` exploits;
+        ``tests/test_nav_models.py`` holds Φ to it."""
+        return _POSE_WIND_ROWS if self.wind_gradient else _POSE_ROWS
 
     def propagate(self, x: NavState, u: ImuIncrement) -> NavState:
         out = x.copy()
