@@ -102,6 +102,8 @@ def test_sitl_user_errors_are_one_line(tmp_path: Path) -> None:
     for args, phrase in (
         (["sitl", "--scenario", "nope"], "nope: no such scenario"),
         (["sitl", "--scenario", "survey-wind8", "--signing-key", "abc"], "--signing-key: expected 64 hex digits"),
+        (["sitl", "--scenario", "survey-wind8", "--viso", "VEL_NSE=1"], "--viso: expected NAME=VALUE"),
+        (["sitl", "--scenario", "survey-wind8", "--viso", "VEL_M_NSE=nan"], "--viso: expected NAME=VALUE"),
         (["plot-flight", str(tmp_path / "missing.npz"), "--out", str(tmp_path / "x.png")], "not a SITL truth file"),
     ):
         r = subprocess.run([sys.executable, "-m", "vdm_aero_cli.main", *args], capture_output=True, text=True,
@@ -129,3 +131,15 @@ def test_gcs_recording_writes_a_replayable_tlog_without_a_companion(tmp_path: Pa
     assert 49.0 < plane.log.meta["rates_hz"]["imu"] < 51.0
     silent = read_log(fly("silent"), ("P00", "P01"))
     assert len(silent.log["ports_t_s"]) == 0 and any("no port values" in w for w in silent.report.warnings)
+
+
+def test_viso_parameters_reach_the_externalnav_judge_as_ardupilot_names_them() -> None:
+    """--viso takes ArduPilot's names, with or without the VISO_ prefix, into the judge's VisoParams; QUAL_MIN and
+    TYPE are integers there as on the autopilot."""
+    from sim.sitl.extnav_judge import VisoParams
+    from vdm_aero_cli.cmd_sitl import _viso
+
+    got = _viso(["VISO_VEL_M_NSE=1.95", "qual_min=1"])
+    assert got == {"vel_m_nse": 1.95, "qual_min": 1} and isinstance(got["qual_min"], int)
+    viso = VisoParams(**got)  # type: ignore[arg-type]
+    assert (viso.vel_m_nse, viso.qual_min, viso.pos_m_nse) == (1.95, 1, VisoParams().pos_m_nse)

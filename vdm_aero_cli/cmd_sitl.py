@@ -76,6 +76,9 @@ def register(sub: Any) -> None:
     p.add_argument("--px4-release", choices=("v1.16", "main"), default="v1.16",
                    help="with --firmware px4: v1.16 has no handler for GLOBAL_POSITION_SENSOR (296), main (2026) "
                    "takes it as auxiliary global position (sim/sitl/ekf2_judge.py)")  # fmt: skip
+    p.add_argument("--viso", action="append", default=[], metavar="NAME=VALUE",
+                   help="an ArduPilot VISO_ parameter the ExternalNav judge uses, as set on the autopilot (repeat): "
+                   "VEL_M_NSE, POS_M_NSE, QUAL_MIN, SCALE, TYPE (default: ArduPilot's defaults)")  # fmt: skip
     p.add_argument("--json", action="store_true", help="print the run summary as JSON")
     p.set_defaults(func=run_sitl_cmd)
 
@@ -99,6 +102,27 @@ def _rates(items: list[str]) -> dict[str, float]:
             out[name.strip().upper()] = float(hz)
         except ValueError:
             raise UserInputError(f"--stream-rate: expected MSG=HZ (e.g. ATTITUDE=50), got {item!r}") from None
+    return out
+
+
+_VISO_PARAMS = {"VEL_M_NSE": "vel_m_nse", "POS_M_NSE": "pos_m_nse", "QUAL_MIN": "qual_min", "SCALE": "scale",
+                "TYPE": "type"}  # fmt: skip
+
+
+def _viso(items: list[str]) -> dict[str, float]:
+    """--viso NAME=VALUE pairs as :class:`~sim.sitl.extnav_judge.VisoParams` fields (integers where ArduPilot's
+    parameter is one)."""
+    out: dict[str, float] = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        key = _VISO_PARAMS.get(name.strip().upper().removeprefix("VISO_"))
+        try:
+            if key is None or not sep or not math.isfinite(v := float(value)):
+                raise ValueError
+        except ValueError:
+            raise UserInputError(f"--viso: expected NAME=VALUE with NAME one of {', '.join(_VISO_PARAMS)}, "
+                                 f"got {item!r}") from None  # fmt: skip
+        out[key] = int(v) if key in ("qual_min", "type") else v
     return out
 
 
@@ -133,9 +157,11 @@ def run_sitl_cmd(args: argparse.Namespace) -> int:
         raise UserInputError("--require-signing needs --signing-key")
     if not (args.speed >= 0.0 and math.isfinite(args.speed)):
         raise UserInputError("--speed: must be a finite number ≥ 0 (0 = as fast as possible)")
+    viso = _viso(args.viso)
     from sim.flight.world import FlightWorld
     from sim.sitl.autopilot import AutopilotOptions, DeadReckoningDrift, run_sitl
     from sim.sitl.ekf2_judge import Ekf2Rules
+    from sim.sitl.extnav_judge import Ek3ExtNavRules, VisoParams
     from sim.sitl.faults import load_faults
 
     faults = load_faults(args.faults) if args.faults is not None else None
@@ -166,6 +192,7 @@ def run_sitl_cmd(args: argparse.Namespace) -> int:
                 firmware=args.firmware,
                 ports_named_too=not args.ports_array_only,
                 ekf2_rules=Ekf2Rules(release=args.px4_release, agp_handler=args.px4_release == "main"),
+                extnav_rules=Ek3ExtNavRules(viso=VisoParams(**viso)),  # type: ignore[arg-type]
                 faults=faults,
                 # the autopilot's own drift drawn per benchmark seed, not the same draw on every flight
                 drift=DeadReckoningDrift(seed=args.seed if args.nav_scenario else 0),

@@ -62,6 +62,7 @@ class ServiceRun:
     autopilot: str = "ardupilot"  # the config's autopilot, and whose rules the mock follows (sitl --firmware)
     px4_release: str = "v1.16"  # as PX4: the release whose EKF2 the mock plays (sitl --px4-release)
     solution_hz: float | None = None  # outputs.solution_hz (default: the shipped config's)
+    viso: tuple[tuple[str, float], ...] = ()  # the autopilot's VISO_ parameters as (name, value) (sitl --viso)
 
 
 def nav_scenario_args(run: ServiceRun) -> list[str]:
@@ -259,6 +260,8 @@ def run_service_sitl(run: ServiceRun, work: Path, *, mag_field_ned_ut: tuple[flo
                 cmd.append("--ports-array-only")
         if run.stop_after_s is not None:
             cmd += ["--duration-s", f"{run.stop_after_s:g}"]
+        for name, value in run.viso:
+            cmd += ["--viso", f"{name}={value:g}"]
         if run.ports_rate_hz is not None:
             cmd += ["--ports-rate-hz", f"{run.ports_rate_hz:g}"]
         if run.signing_key_hex is not None:
