@@ -62,6 +62,18 @@ def engine_clock() -> Iterator[dict[str, float]]:
             setattr(ExtendedKalmanFilter, name, method)
 
 
+def _front_end(nav: Any) -> Any:
+    """A port front end for one run, as each version builds it: ``NavModels.front_end`` where the checkout has it
+    (it adds the ports' airspeed calibration), else the ``PortFrontEnd`` constructor as the code before issue 25
+    calls it (``make bench`` runs this script on both: an AttributeError there stopped it from 2026-11-30 to
+    2026-12-02)."""
+    if hasattr(nav, "front_end"):
+        return nav.front_end(range_pa=500.0, noise_pa=0.2)
+    from vdm_aero.nav.ports_frontend import PortFrontEnd
+
+    return PortFrontEnd(nav.pressure_model, dict(nav.models), range_pa=500.0, noise_pa=0.2)
+
+
 def measure(artifacts_dir: Path, seconds: float, repeats: int, modes: list[str], *,
             engine_share: bool = False) -> dict[str, Any]:  # fmt: skip
     from vdm_aero.geodesy import LocalFrame
@@ -87,7 +99,7 @@ def measure(artifacts_dir: Path, seconds: float, repeats: int, modes: list[str],
         reads_ports = spec.ports_airdata or spec.force in ("deim", "deim-nn")
         times, shares, calls = [], [], []
         for _ in range(repeats):
-            fe = nav.front_end(range_pa=500.0, noise_pa=0.2) if reads_ports else None
+            fe = _front_end(nav) if reads_ports else None
             runner = LogRunner(stream, {m: NavFilter(m, cfg, nav.derivatives)}, fe)
             if engine_share:
                 with engine_clock() as engine:
