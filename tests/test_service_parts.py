@@ -418,7 +418,9 @@ def test_the_gyros_scale_errors_outlive_a_restart_a_reboot_and_a_dropped_pose(tm
         f.initialise(0.0, np.zeros(3), v0, f_b, mag)
         assert f.x is not None and f.engine is not None
         f.x.gyro_m_err_b = m.copy()
-        f.engine.P[gm, gm] = np.diag(np.full(9, 1e-6))  # σ 1e-3: learnt, tighter than its prior
+        p = f.engine.P
+        p[gm, gm] = np.diag(np.full(9, 1e-6))  # σ 1e-3: learnt, tighter than its prior
+        f.engine.P = p  # P is a new array where the mode's layout leaves δM out of the engine
         return f
 
     def fresh(mode: str) -> NavFilter:
@@ -744,7 +746,9 @@ def test_a_restored_state_is_checked_against_the_mode_the_models_and_the_boot(
     assert a.x is not None and a.engine is not None
     a.x.aero[2] = 1.04
     a.x.b_gyro_b = np.array([1e-3, -2e-3, 5e-4])
-    a.engine.P[IDX["bg"], IDX["bg"]] = 1e-8  # converged
+    p = a.engine.P
+    p[IDX["bg"], IDX["bg"]] = 1e-8  # converged
+    a.engine.P = p  # a new array in this mode's layout (EkfEngine.P)
     store = FilterStateStore(tmp_path / "filter-state.npz")
     boot = 1_790_000_000.0
     assert store.save(a, models_id="models-1", autopilot_boot_unix_s=boot)

@@ -13,7 +13,12 @@ adapter adds what an aircraft filter needs around it:
 * stochastic clones (Roumeliotis & Burdick, ICRA 2002): a linear combination of the error state remembered at
   one time, whose covariance with the error state is carried through every later prediction and update, so
   that a measurement *relative* to that time (a free INS run from the filter's own pose then) is fused as the
-  news it is and not as an independent fix. filterpy has no clones either.
+  news it is and not as an independent fix. filterpy has no clones either;
+* an inert tail: the last states of a layout that a mode leaves out of its dynamics and its measurements (the
+  wind's gradient and the IMU's scale states in every mode but ``vdm``) keep their prior variance and are never
+  correlated with the rest, so filterpy carries only the states before them. The filter's arithmetic is then
+  that of the active states alone, with what the tail holds put back at the edges (:attr:`EkfEngine.P`, the
+  corrections :meth:`EkfEngine.update` returns).
 """
 
 from __future__ import annotations
@@ -39,29 +44,78 @@ class UpdateResult:
 
 
 class EkfEngine:
-    """Covariance bookkeeping of an error-state EKF of dimension ``n`` (filterpy underneath)."""
+    """Covariance bookkeeping of an error-state EKF of dimension ``n`` (filterpy underneath).
 
-    def __init__(self, p0: F64Array) -> None:
+    ``n_active``: the states ``n_active`` … ``n − 1`` are an inert tail (the module docstring). The caller
+    promises that every Φ it predicts with is the identity there with no noise, and that every Jacobian it
+    updates with has zero columns there; the engine then reads only the first ``n_active`` rows and columns of
+    what it is given. ``p0`` must be diagonal in the tail and uncorrelated with the rest."""
+
+    def __init__(self, p0: F64Array, n_active: int | None = None) -> None:
+        p0 = np.array(p0, dtype=np.float64)
         n = p0.shape[0]
-        self._kf = ExtendedKalmanFilter(dim_x=n, dim_z=1)
-        self._kf.x = np.zeros((n, 1))
-        self._kf.P = np.array(p0, dtype=np.float64)
+        na = n if n_active is None else int(n_active)
+        if not 0 < na <= n:
+            raise ValueError(f"n_active {na} outside 1 … {n}")
+        tail_var = p0.diagonal()[na:].copy()
+        if p0[:na, na:].any() or p0[na:, :na].any() or np.count_nonzero(p0[na:, na:] - np.diag(tail_var)):
+            raise ValueError("the inert tail's prior covariance must be diagonal and uncorrelated with the rest")
+        self._kf = ExtendedKalmanFilter(dim_x=na, dim_z=1)
+        self._kf.x = np.zeros((na, 1))
+        self._kf.P = p0[:na, :na].copy()
         self._n = n
+        self._na = na
+        self._tail_var = tail_var
         # clones: their keys, each one's own covariance (k × k) and their covariances with the error state,
         # side by side (n × k per clone: one product per prediction however many there are), and the
         # corrections the updates since have made to them (k per clone, side by side)
         self._clone_keys: list[float] = []
         self._clone_cov = np.zeros((0, 0, 0))  # clones × k × k
-        self._cross = np.zeros((n, 0))
+        self._cross = np.zeros((na, 0))
         self._clone_dx = np.zeros(0)
 
     @property
+    def n_active(self) -> int:
+        """The states filterpy carries: the first ``n_active`` of ``n`` (the rest an inert tail)."""
+        return self._na
+
+    @property
     def P(self) -> F64Array:
-        return np.asarray(self._kf.P)
+        """The covariance, n × n. Without an inert tail it is filterpy's own array; with one, a new array (the
+        tail's prior variances on its diagonal), so a change to it must be set back through the setter."""
+        p = np.asarray(self._kf.P)
+        if self._na == self._n:
+            return p
+        full = np.zeros((self._n, self._n))
+        full[: self._na, : self._na] = p
+        tail = np.arange(self._na, self._n)
+        full[tail, tail] = self._tail_var
+        return full
 
     @P.setter
     def P(self, value: F64Array) -> None:
-        self._kf.P = np.array(value, dtype=np.float64)
+        """Set the covariance (n × n). An inert tail takes only its diagonal: its covariance with the active
+        states is not carried (nothing the filter fuses or predicts could read it)."""
+        value = np.asarray(value, dtype=np.float64)
+        self._kf.P = np.array(value[: self._na, : self._na])
+        self._tail_var = value.diagonal()[self._na :].copy()
+
+    def variances(self) -> F64Array:
+        """The diagonal of :attr:`P` (n), without forming P."""
+        return np.concatenate([np.asarray(self._kf.P).diagonal(), self._tail_var])
+
+    def projected(self, h: F64Array) -> F64Array:
+        """H·P·Hᵀ for a Jacobian ``h`` (m × n) that does not observe the inert tail."""
+        ha = h[:, : self._na]
+        return np.asarray(ha @ self._kf.P @ ha.T)
+
+    def _full(self, dx: F64Array) -> F64Array:
+        """A correction of the active states as one of all n (the inert tail's part zero)."""
+        if self._na == self._n:
+            return dx
+        out = np.zeros(self._n)
+        out[: self._na] = dx
+        return out
 
     def predict(self, phi: F64Array, qd: F64Array, rows: IntArray | None = None) -> None:
         """P ← ΦPΦᵀ + Q_d (δx stays zero: the nominal state carries the propagation).
@@ -72,6 +126,8 @@ class EkfEngine:
         n × n products and its copies: 25.6 → 16.0 µs at n = 53 (docs/performance.md). Without ``rows``,
         filterpy's own ``predict``: the reference the tests hold this one to."""
         kf = self._kf
+        if self._na < self._n:
+            phi, qd = phi[: self._na, : self._na], qd[: self._na, : self._na]
         if rows is None:
             kf.F = phi
             kf.Q = qd
@@ -94,7 +150,7 @@ class EkfEngine:
 
     def nis(self, innovation: F64Array, h: F64Array, r: F64Array) -> float:
         """The normalised innovation squared yᵀS⁻¹y of a measurement, S = HPHᵀ + R, without fusing it."""
-        return self._s_and_nis(innovation, h, r)[1]
+        return self._s_and_nis(innovation, h[:, : self._na], r)[1]
 
     def _s_and_nis(self, innovation: F64Array, h: F64Array, r: F64Array) -> tuple[F64Array, float]:
         s = h @ self._kf.P @ h.T + r
@@ -115,11 +171,15 @@ class EkfEngine:
         correction δx (to inject into the nominal state; zero when rejected) and the gate outcome."""
         kf = self._kf
         p = kf.P
+        na = self._na
+        h = h[:, :na]
+        if consider is not None:
+            consider = consider[:na]
         if consider is None or not consider.any():
             # filterpy forms S and S⁻¹ for its gain anyway: the gate reads its S⁻¹, and a rejected update puts the
             # prior back (filterpy assigns a new P, the prior array is untouched). Gating first would form S twice
             # for every accepted update, the common case (docs/performance.md, third round)
-            kf.x = np.zeros((self._n, 1))
+            kf.x = np.zeros((na, 1))
             try:
                 kf.update(innovation.reshape(-1, 1), lambda _x: h, lambda _x: np.zeros((len(innovation), 1)), R=r)
                 nis = float(innovation @ kf.SI @ innovation)
@@ -128,7 +188,7 @@ class EkfEngine:
             except ValueError:  # a non-finite S (scipy's inverse checks it)
                 nis = float("nan")
             if not nis <= gate:
-                kf.P, kf.x = p, np.zeros((self._n, 1))
+                kf.P, kf.x = p, np.zeros((na, 1))
                 return np.zeros(self._n), UpdateResult(False, nis, gate)
             dx = np.asarray(kf.x).ravel().copy()
             if self._clone_keys:
@@ -139,17 +199,22 @@ class EkfEngine:
                 return np.zeros(self._n), UpdateResult(False, nis, gate)
             k = np.linalg.solve(s, h @ p).T
             k[consider] = 0.0
-            ikh = np.eye(self._n) - k @ h
+            ikh = np.eye(na) - k @ h
             kf.P = ikh @ p @ ikh.T + k @ r @ k.T
             dx = k @ innovation
             if self._clone_keys:
                 self._update_clones(p, h, s, k, innovation)
-        kf.x = np.zeros((self._n, 1))
-        return dx, UpdateResult(True, nis, gate)
+        kf.x = np.zeros((na, 1))
+        return self._full(dx), UpdateResult(True, nis, gate)
 
     def reset_states(self, idx: slice, cov: F64Array) -> None:
         """Forget what is known of the states ``idx``: covariance ``cov``, uncorrelated with every other state
         and with the clones (a reset makes them a fresh draw)."""
+        if idx.start >= self._na:  # an inert tail's: its variance alone
+            self._tail_var[idx.start - self._na : idx.stop - self._na] = np.diagonal(cov)
+            return
+        if idx.stop > self._na:
+            raise ValueError(f"states {idx.start} … {idx.stop - 1} straddle the inert tail at {self._na}")
         p = self._kf.P
         p[idx, :] = 0.0
         p[:, idx] = 0.0
@@ -166,6 +231,7 @@ class EkfEngine:
         """Remember ``sel``·x now (``sel`` k × n) under ``key``, as k more states of the filter: constant in
         the prediction, corrected by every update like the others (the caller keeps the value it took now; the
         engine keeps the corrections and applies them in :meth:`update_relative`)."""
+        sel = sel[:, : self._na]
         p = np.asarray(self._kf.P)
         self._clone_keys.append(key)
         cov = (sel @ p @ sel.T)[None]
@@ -214,6 +280,9 @@ class EkfEngine:
         valid for any gain (the considered states' gain rows are zeroed), and the clones are spent: their
         covariances with each other were never carried, so none is left. No gate: the caller fuses what it
         means to fuse."""
+        h = h[:, : self._na]
+        if consider is not None:
+            consider = consider[: self._na]
         j = self._clone_keys.index(key)
         k = self._clone_cov[j].shape[0]
         c, paa = self._cross[:, j * k : (j + 1) * k], self._clone_cov[j]
@@ -232,4 +301,4 @@ class EkfEngine:
         p_new = p - kpt - kpt.T + gain @ s @ gain.T
         self._kf.P = 0.5 * (p_new + p_new.T)
         self.drop_clones()
-        return gain @ innovation, UpdateResult(True, nis, float("inf"))
+        return self._full(gain @ innovation), UpdateResult(True, nis, float("inf"))

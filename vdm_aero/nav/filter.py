@@ -700,6 +700,19 @@ class NavFilter:
         }  # fmt: skip
 
     # -------------------------------------------------------------------------------- initialise
+    def _active_states(self) -> int:
+        """How many of the error states the engine carries: all but the trailing blocks this mode leaves out of
+        its dynamics and its measurements (the wind's gradient, the gyro's and the accelerometer's scale states:
+        every mode but ``vdm`` and some of its ablations). Those stay at their prior, uncorrelated with the rest,
+        and carrying them cost the baselines' steps their time (docs/performance.md, "A state layout per mode")."""
+        inert = {"wg": not self.spec.wind_gradient, "gm": not self.spec.gyro_m_err, "am": not self.spec.accel_m_err}
+        n = N_ERR
+        for block in ("am", "gm", "wg"):  # the layout's last blocks, last first (vdm_aero.nav.state.IDX)
+            if not inert[block] or IDX[block].stop != n:
+                break
+            n = IDX[block].start
+        return n
+
     @_barrier
     def initialise(
         self, t_s: float, p_ned: F64Array, v_ned: F64Array, f_b: F64Array, mag_b_ut: F64Array | None
@@ -740,7 +753,7 @@ class NavFilter:
         sig[IDX["am"]] = np.where(
             np.eye(3, dtype=bool), self.config.accel_scale_sigma, self.config.accel_cross_axis_sigma
         )[:, :2].ravel()  # likewise
-        self.engine = EkfEngine(np.diag(sig**2))
+        self.engine = EkfEngine(np.diag(sig**2), self._active_states())
         self.t_s = t_s
         self._t_init_s = t_s
         self._last_gnss_s = t_s
@@ -793,7 +806,7 @@ class NavFilter:
         if not self._awaiting_rotation():  # its pseudo-measurements wait for the rotation as the others do
             self._model_aiding(t_s)
         if not self.in_outage and t_s - self._last_airdata_s < 1.0 and t_s - self._t_init_s > TURBULENCE_AFTER_S:
-            p = np.diag(self.engine.P)[IDX["gust"]]
+            p = self.engine.variances()[IDX["gust"]]
             self.process.set_gust_sigma(self.turbulence.observe(x.gust_ned, p, inc.dt_s))
         if self._att_hole is not None and not self._awaiting_rotation():
             self._att_hole, self._hole_cov = None, None  # no ATTITUDE after the hole in time: the rest go on
@@ -1141,7 +1154,7 @@ class NavFilter:
         r = model.covariance()
         if adaptive:
             if not self.in_outage:
-                self.adaptive.observe(model.name, y, ((h @ self.engine.P) * h).sum(axis=1))  # diag(HPHᵀ)
+                self.adaptive.observe(model.name, y, self.engine.projected(h).diagonal())
             r = self.adaptive.covariance(model.name, r)
         dx, res = self.engine.update(y, h, r, gate, consider)
         name = model.name
@@ -1377,7 +1390,7 @@ class NavFilter:
             assert self.x is not None and self.engine is not None
             model = MagField(field_ned, sigma)
             h = model.jacobian(self.x)
-            s = h @ self.engine.P @ h.T + model.covariance()
+            s = self.engine.projected(h) + model.covariance()
             earth_b = dcm_from_quat(self.x.q_nb).T @ field_ned
             dev = self.mag_deviation
             learnt = dev.throttle_range() if dev is not None and self.spec.compass_throttle_range else None
