@@ -109,12 +109,31 @@ def bench_discovery_10_cases(repeats: int) -> dict[str, Any]:
     return ten_case_discovery()
 
 
+NAV_SPEED_ROUNDS = 6  # the lowest and highest of six paired rounds hold their median ratio with 96.9 % confidence
+
+
+def paired_round_ratios(before: list[float], after: list[float]) -> dict[str, Any]:
+    """Speed-up from rounds that timed both versions back to back: each round's before ÷ after, their median,
+    and the lowest and highest ratio, a distribution-free interval for the median (the sign test's: it misses
+    only when every round falls on one side, probability 2 · 0.5ⁿ). A paired ratio cancels what the machine's
+    speed does between rounds, which on this shared machine moves single times by tens of percent."""
+    if len(before) != len(after) or not before:
+        raise ValueError("paired_round_ratios: one before and one after per round")
+    r = sorted(b / a for b, a in zip(before, after, strict=True))
+    n = len(r)
+    return {"speedup": round(statistics.median(r), 3), "speedup_interval": [round(r[0], 3), round(r[-1], 3)],
+            "interval_confidence": round(1.0 - 2.0 * 0.5**n, 4), "rounds": n,
+            "rounds_faster": sum(v > 1.0 for v in r)}  # fmt: skip
+
+
 def bench_nav_speed(repeats: int) -> dict[str, Any]:
     """The navigation filter alone, per mode, on 120 s of a 400 Hz IMU flight, today's code beside the code
-    before issue 25 (bench/baseline.py), alternating so that both see the same machine. Bars (issue 25): each
-    mode ≥ 5× faster than before; ``vdm`` ≥ 250× real time. Beside them, the share of today's step spent in
-    filterpy's predict and update (the engine the issue keeps) and the ratio to the code before that a step
-    would reach if everything else in it cost nothing: the ceiling that engine sets."""
+    before issue 25 (bench/baseline.py). Each round times both versions back to back, in turn first
+    (``max(repeats, 6)`` rounds), and the speed-up is the median of the rounds' paired ratios with the interval
+    their spread gives (:func:`paired_round_ratios`). Bars (issue 25): each mode ≥ 5× faster than before;
+    ``vdm`` ≥ 250× real time. Beside them, the share of today's step spent in filterpy's predict and update
+    (the engine the issue keeps) and the ratio to the code before that a step would reach if everything else
+    in it cost nothing: the ceiling that engine sets."""
     from bench.baseline import REPO, baseline_checkout, run_python
     from vdm_aero_cli.nav_bench import build_artifacts
 
@@ -123,21 +142,24 @@ def bench_nav_speed(repeats: int) -> dict[str, Any]:
     probe = str(REPO / "bench" / "filter_speed_probe.py")
     trees = {"after": REPO, "before": baseline_checkout()}
     rounds: dict[str, list[dict[str, Any]]] = {"after": [], "before": []}
-    for _ in range(max(repeats // 2, 2)):
-        for name, tree in trees.items():
+    for k in range(max(repeats, NAV_SPEED_ROUNDS)):
+        for name in ("after", "before") if k % 2 == 0 else ("before", "after"):
             rounds[name].append(
-                json.loads(run_python(tree, [probe, str(art_root), "--seconds", "120", "--repeats", "3"]))
+                json.loads(run_python(trees[name], [probe, str(art_root), "--seconds", "120", "--repeats", "2"]))
             )
     share_args = [probe, str(art_root), "--seconds", "120", "--repeats", "3", "--engine-share"]
     shares = json.loads(run_python(REPO, share_args))
     modes: dict[str, Any] = {}
     for m in rounds["after"][0]:
-        after = statistics.median(r[m]["us_per_step"] for r in rounds["after"])
-        before = statistics.median(r[m]["us_per_step"] for r in rounds["before"])
+        after = [r[m]["us_per_step"] for r in rounds["after"]]
+        before = [r[m]["us_per_step"] for r in rounds["before"]]
+        paired = paired_round_ratios(before, after)
+        a_med = statistics.median(after)
         share = shares[m]["engine_share"]
-        modes[m] = {"us_per_step_before": before, "us_per_step_after": after, "speedup": round(before / after, 2),
-                    "x_real_time_after": round(1e6 / (50.0 * after), 1), "filterpy_share": share,
-                    "speedup_ceiling_with_filterpy": round(before / (after * share), 2)}  # fmt: skip
+        modes[m] = {"us_per_step_before": statistics.median(before), "us_per_step_after": a_med, **paired,
+                    "x_real_time_after": round(1e6 / (50.0 * a_med), 1), "filterpy_share": share,
+                    "speedup_ceiling_with_filterpy": round(paired["speedup"] / share, 2),
+                    "rounds_us_per_step_before": before, "rounds_us_per_step_after": after}  # fmt: skip
     return {"flight_s": 120.0, "imu_rate_hz": 400.0, "baseline": "bench/baseline.py BASELINE_REF", "modes": modes,
             "bars": {"speedup_each_mode": 5.0, "vdm_x_real_time": 250.0},
             "meets_bar": {"speedup_each_mode": all(v["speedup"] >= 5.0 for v in modes.values()),
