@@ -218,7 +218,8 @@ def bench_service(repeats: int) -> dict[str, Any]:
     latency from the kernel's arrival stamp of the last port message's datagram; the code before counted it from
     its read, which leaves out the wait in the socket (docs/performance.md). Beside the real-time CPU, the offline
     replay of each version's recorded link (bench/service_work_probe.py): its own work, and that work paced as
-    the link delivers it."""
+    the link delivers it. A round flies one seed with both versions back to back, the first alternating, and
+    beside the medians the CPU's and p99's before ÷ after come paired by round (:func:`paired_round_ratios`)."""
     import subprocess
     import sys
 
@@ -237,7 +238,9 @@ def bench_service(repeats: int) -> dict[str, Any]:
     runs: dict[str, dict[str, list[dict[str, Any]]]] = {k: {"after": [], "before": []} for k in setups}
     for k in range(max(repeats // 2, 1)):
         for setup, quota in setups.items():
-            for name, tree in trees.items():
+            # both versions fly round k's seed back to back, the first alternating (paired_round_ratios)
+            for name in ("after", "before") if k % 2 == 0 else ("before", "after"):
+                tree = trees[name]
                 run = ServiceRun(art.dataset_dir, art.deim_dir, art.nn_dir, seed=k, speed=1.0, stop_after_s=90.0,
                                  ports_rate_hz=100.0)  # fmt: skip
                 # the other checkout's code: first on PYTHONPATH, and the working directory (``python -m`` puts it
@@ -272,9 +275,13 @@ def bench_service(repeats: int) -> dict[str, Any]:
     keys = ("latency_p99_ms", "cpu_pct_one_core", "peak_rss_mb")
     median = {s: {n: {k: statistics.median(r[k] for r in rs) for k in keys} for n, rs in by.items()}
               for s, by in runs.items()}  # fmt: skip
+    # before ÷ after of each round's pair (a round flies one seed with both versions back to back)
+    paired = {s: {k: paired_round_ratios([r[k] for r in by["before"]], [r[k] for r in by["after"]])
+                  for k in ("latency_p99_ms", "cpu_pct_one_core")} for s, by in runs.items()}  # fmt: skip
     bars = {"latency_p99_ms": 1.0, "cpu_pct_one_core": 3.0, "peak_rss_mb": round(1.3 * floor, 1)}
     after = median["one core"]["after"]
-    return {"runs": runs, "median": median, "offline_work": work, "floor_rss_mb": round(floor, 1), "pi4": ratio,
+    return {"runs": runs, "median": median, "paired_ratio_before_over_after": paired, "offline_work": work,
+            "floor_rss_mb": round(floor, 1), "pi4": ratio,
             "pi4_core_pct_of_this_core": round(pi_core_pct, 1), "quota_skipped": no_quota, "bars": bars,
             "meets_bar": {k: after[k] <= b for k, b in bars.items()}}  # fmt: skip
 
